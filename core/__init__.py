@@ -1,0 +1,1 @@
+"""Pure NumPy/SciPy core of the delighting tool (never imports bpy)."""

@@ -1,0 +1,250 @@
+"""Problem data for multi-view reflectance estimation.
+
+A :class:`Problem` holds everything the solver needs, as plain NumPy arrays:
+for each of the m views a linear image, a mask and per-pixel unit normals;
+optionally the pixel correspondences between views (image domain) and the
+per-pixel texture coordinates plus a :class:`TextureLayout` (texture domain).
+
+Conventions
+-----------
+* Images are ``(H, W, C)`` float32, linear, C = 1 or 3. Row 0 is the top row.
+* Continuous pixel coordinates ``(x, y)`` put the centre of pixel
+  ``(row r, col c)`` at ``(c, r)``: x to the right, y down.
+* UV coordinates are Blender's: u to the right, v up, both in [0, 1].
+* A texture of size N is an ``(N, N, ...)`` array with row 0 at the top
+  (v = 1), as EXR viewers expect. Texel ``(r, c)`` has its centre at
+  ``u = (c + 0.5) / N``, ``v = 1 - (r + 0.5) / N``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Correspondences", "TextureLayout", "Problem"]
+
+
+def _fail(msg):
+    raise ValueError(msg)
+
+
+@dataclass
+class Correspondences:
+    """Pairs of pixels in two views that see the same surface point.
+
+    Pair k links pixel ``pixel_a[k]`` (a flat index ``row * W + col``) of view
+    ``view_a[k]`` with the continuous position ``xy_b[k]`` in view
+    ``view_b[k]``. Integer positions give exact pixel pairs; fractional ones
+    are sub-pixel and are interpolated bilinearly from the masked pixels.
+
+    Parameters
+    ----------
+    view_a, pixel_a, view_b : (K,) int arrays
+    xy_b : (K, 2) float array
+        ``(x, y)`` in view ``view_b``'s continuous pixel coordinates.
+    weight : (K,) float array, optional
+        Non-negative per-pair weights (default 1).
+    """
+
+    view_a: np.ndarray
+    pixel_a: np.ndarray
+    view_b: np.ndarray
+    xy_b: np.ndarray
+    weight: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.view_a = np.asarray(self.view_a, dtype=np.intp).ravel()
+        self.pixel_a = np.asarray(self.pixel_a, dtype=np.intp).ravel()
+        self.view_b = np.asarray(self.view_b, dtype=np.intp).ravel()
+        self.xy_b = np.asarray(self.xy_b, dtype=np.float64).reshape(-1, 2)
+        k = self.view_a.size
+        if not (self.pixel_a.size == self.view_b.size == self.xy_b.shape[0] == k):
+            _fail(f"correspondences: view_a, pixel_a, view_b and xy_b must have the same length "
+                  f"(got {k}, {self.pixel_a.size}, {self.view_b.size}, {self.xy_b.shape[0]})")
+        if self.weight is None:
+            self.weight = np.ones(k, dtype=np.float64)
+        else:
+            self.weight = np.asarray(self.weight, dtype=np.float64).ravel()
+            if self.weight.size != k:
+                _fail(f"correspondences: {self.weight.size} weights for {k} pairs")
+            if not np.all(np.isfinite(self.weight)) or np.any(self.weight < 0):
+                _fail("correspondences: weights must be finite and non-negative")
+        if not np.all(np.isfinite(self.xy_b)):
+            _fail("correspondences: xy_b holds NaN or infinite coordinates")
+
+    def __len__(self):
+        return int(self.view_a.size)
+
+
+@dataclass
+class TextureLayout:
+    """The mesh's UV texture grid, for the texture-domain solver.
+
+    Parameters
+    ----------
+    texel_pos : (N, N, 3) float array
+        World position of each texel centre on the surface, found by
+        rasterising the mesh in UV space; NaN for texels outside every UV
+        island. It defines which texels exist and the surface length of each
+        texel edge (the TV weights).
+    seam_pairs : (K, 2) int array, optional
+        Flat texel indices ``r * N + c`` of neighbours across UV seams, from
+        the mesh edge adjacency.
+    """
+
+    texel_pos: np.ndarray
+    seam_pairs: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.texel_pos = np.asarray(self.texel_pos, dtype=np.float32)
+        p = self.texel_pos
+        if p.ndim != 3 or p.shape[0] != p.shape[1] or p.shape[2] != 3:
+            _fail(f"texture layout: texel_pos must be (N, N, 3), got {p.shape}")
+        if not np.any(self.inside):
+            _fail("texture layout: no texel lies inside a UV island")
+        n2 = p.shape[0] * p.shape[1]
+        if self.seam_pairs is None:
+            self.seam_pairs = np.zeros((0, 2), dtype=np.intp)
+        self.seam_pairs = np.asarray(self.seam_pairs, dtype=np.intp).reshape(-1, 2)
+        if self.seam_pairs.size and (self.seam_pairs.min() < 0 or self.seam_pairs.max() >= n2):
+            _fail(f"texture layout: seam_pairs index out of range [0, {n2})")
+
+    @property
+    def size(self) -> int:
+        return int(self.texel_pos.shape[0])
+
+    @property
+    def inside(self) -> np.ndarray:
+        """(N, N) bool: texels inside a UV island."""
+        return np.all(np.isfinite(self.texel_pos), axis=2)
+
+
+@dataclass
+class Problem:
+    """Inputs of the reflectance estimation, validated on construction.
+
+    Parameters
+    ----------
+    images : list of (H, W, C) arrays
+        Linear images, one per view; C is 1 or 3 and the same for all views.
+    masks : list of (H, W) bool arrays
+        Pixels that see the surface (Omega^i). Must not be empty.
+    normals : list of (H, W, 3) arrays
+        Unit world-space normals, checked inside the masks only.
+    correspondences : Correspondences, optional
+        Needed by the image-domain solver's consistency term.
+    uv : list of (H, W, 2) arrays, optional
+        Texture coordinates of each hit pixel, needed by the texture domain
+        and by fusion.
+    texture : TextureLayout, optional
+        Needed by the texture-domain solver.
+    view_weight : list of (H, W) arrays, optional
+        Confidence of each pixel in [0, 1], typically the cosine between the
+        normal and the viewing ray; grazing views count less. Default 1.
+    names : list of str, optional
+        View names, used in messages and output file names.
+    """
+
+    images: list
+    masks: list
+    normals: list
+    correspondences: Correspondences | None = None
+    uv: list | None = None
+    texture: TextureLayout | None = None
+    view_weight: list | None = None
+    names: list = field(default_factory=list)
+
+    def __post_init__(self):
+        m = len(self.images)
+        if m == 0:
+            _fail("problem: no views")
+        if not self.names:
+            self.names = [f"view{i}" for i in range(m)]
+        if len(self.names) != m:
+            _fail(f"problem: {len(self.names)} names for {m} views")
+        for what, seq in (("masks", self.masks), ("normals", self.normals),
+                          ("uv", self.uv), ("view_weight", self.view_weight)):
+            if seq is not None and len(seq) != m:
+                _fail(f"problem: {len(seq)} {what} for {m} images")
+        self.images = [np.asarray(a, dtype=np.float32) for a in self.images]
+        self.images = [a[:, :, None] if a.ndim == 2 else a for a in self.images]
+        self.masks = [np.asarray(a, dtype=bool) for a in self.masks]
+        self.normals = [np.asarray(a, dtype=np.float32) for a in self.normals]
+        channels = self.images[0].shape[2] if self.images[0].ndim == 3 else None
+        for i, (img, mask, nrm) in enumerate(zip(self.images, self.masks, self.normals)):
+            v = f"view {i} ({self.names[i]})"
+            if img.ndim != 3 or img.shape[2] not in (1, 3):
+                _fail(f"{v}: image must be (H, W, 1) or (H, W, 3), got {img.shape}")
+            if img.shape[2] != channels:
+                _fail(f"{v}: has {img.shape[2]} channels, view 0 has {channels}")
+            hw = img.shape[:2]
+            if mask.shape != hw:
+                _fail(f"{v}: mask shape {mask.shape} does not match image {hw}")
+            if nrm.shape != hw + (3,):
+                _fail(f"{v}: normals shape {nrm.shape}, expected {hw + (3,)}")
+            if not mask.any():
+                _fail(f"{v}: the mask is empty (no pixel sees the surface)")
+            bad = ~np.isfinite(img[mask]).all(axis=1)
+            if bad.any():
+                _fail(f"{v}: {int(bad.sum())} pixels inside the mask are NaN or infinite")
+            nm = nrm[mask]
+            if not np.isfinite(nm).all():
+                _fail(f"{v}: normals inside the mask are NaN or infinite")
+            length = np.linalg.norm(nm, axis=1)
+            if np.any(np.abs(length - 1) > 1e-2):
+                worst = float(length[np.argmax(np.abs(length - 1))])
+                _fail(f"{v}: normals inside the mask must have unit length (found length {worst:.3g})")
+            if self.uv is not None:
+                uv = self.uv[i] = np.asarray(self.uv[i], dtype=np.float32)
+                if uv.shape != hw + (2,):
+                    _fail(f"{v}: uv shape {uv.shape}, expected {hw + (2,)}")
+                if not np.isfinite(uv[mask]).all():
+                    _fail(f"{v}: uv inside the mask is NaN or infinite")
+            if self.view_weight is not None:
+                w = self.view_weight[i] = np.asarray(self.view_weight[i], dtype=np.float32)
+                if w.shape != hw:
+                    _fail(f"{v}: view_weight shape {w.shape}, expected {hw}")
+                wm = w[mask]
+                if not np.isfinite(wm).all() or wm.min() < 0:
+                    _fail(f"{v}: view_weight inside the mask must be finite and >= 0")
+        if self.correspondences is not None:
+            self._check_correspondences()
+        if self.texture is not None and self.uv is None:
+            _fail("problem: a texture layout needs per-pixel uv")
+
+    def _check_correspondences(self):
+        c = self.correspondences
+        m = self.n_views
+        for name, views in (("view_a", c.view_a), ("view_b", c.view_b)):
+            if views.size and (views.min() < 0 or views.max() >= m):
+                _fail(f"correspondences: {name} index out of range [0, {m})")
+        if len(c) == 0:
+            return
+        sizes = np.array([mk.size for mk in self.masks])
+        if c.pixel_a.min() < 0 or np.any(c.pixel_a >= sizes[c.view_a]):
+            k = int(np.flatnonzero((c.pixel_a < 0) | (c.pixel_a >= sizes[c.view_a]))[0])
+            _fail(f"correspondences: pair {k} has pixel_a {c.pixel_a[k]} out of range for view {c.view_a[k]}")
+        hs = np.array([mk.shape[0] for mk in self.masks])
+        ws = np.array([mk.shape[1] for mk in self.masks])
+        x, y = c.xy_b[:, 0], c.xy_b[:, 1]
+        out = (x < -0.5) | (y < -0.5) | (x > ws[c.view_b] - 0.5) | (y > hs[c.view_b] - 0.5)
+        if out.any():
+            k = int(np.flatnonzero(out)[0])
+            _fail(f"correspondences: pair {k} has xy_b {tuple(c.xy_b[k])} outside view {c.view_b[k]}")
+        flat_mask = [mk.ravel() for mk in self.masks]
+        for i in np.unique(c.view_a):
+            sel = c.view_a == i
+            if not flat_mask[i][c.pixel_a[sel]].all():
+                _fail(f"correspondences: some pixel_a of view {i} lie outside its mask")
+
+    @property
+    def n_views(self) -> int:
+        return len(self.images)
+
+    @property
+    def channels(self) -> int:
+        return int(self.images[0].shape[2])
+
+    def pixel_index(self, i: int) -> np.ndarray:
+        """Flat indices of the masked pixels of view i, in row-major order."""
+        return np.flatnonzero(self.masks[i].ravel())
