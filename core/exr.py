@@ -1,0 +1,178 @@
+"""Read and write OpenEXR images as NumPy arrays.
+
+Arrays are ``(H, W, C)`` float32, linear, with row 0 the **top** row (as in
+the file; Blender's ``Image.pixels`` is the other way up).
+
+Multi-part files
+----------------
+Blender 5 writes a multilayer EXR as a multi-part file, one part per render
+pass (``"ViewLayer.Combined"``, ``"ViewLayer.Normal"``, ...), whose channels
+repeat the part name (``"ViewLayer.Combined.R"``). :func:`read_exr` reads one
+part: by default the first part that has R, G and B channels, else part 0.
+Channel names are returned without that ``"<part name>."`` prefix.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import OpenEXR
+
+from .atomic import atomic_path
+
+__all__ = ["read_exr", "write_exr", "exr_parts"]
+
+_MAGIC = b"\x76\x2f\x31\x01"
+_FIRST = ("R", "G", "B", "A")
+
+
+def _open(path, header_only=False):
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"EXR file not found: {path}")
+    if not os.path.isfile(path):
+        raise ValueError(f"not a file: {path}")
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic != _MAGIC:
+        raise ValueError(f"not an OpenEXR file: {path}")
+    try:
+        return OpenEXR.File(path, separate_channels=True, header_only=header_only)
+    except Exception as exc:  # the binding raises a bare RuntimeError
+        raise ValueError(f"cannot read OpenEXR file {path} (corrupt or truncated?): {exc}") from exc
+
+
+def _short_name(channel, part_name):
+    prefix = part_name + "." if part_name else ""
+    return channel[len(prefix):] if prefix and channel.startswith(prefix) else channel
+
+
+def _ordered(names):
+    """R, G, B, A first when present, then the others in file order."""
+    first = [n for n in _FIRST if n in names]
+    return first + [n for n in names if n not in first]
+
+
+def exr_parts(path) -> list[tuple[str, list[str]]]:
+    """List the parts of an EXR file without reading pixels.
+
+    Returns
+    -------
+    list of (part name, channel names)
+        Channel names as :func:`read_exr` would return them for that part.
+    """
+    f = _open(path, header_only=True)
+    out = []
+    for p in f.parts:
+        names = [c.name for c in p.header.get("channels", [])]
+        out.append((p.name(), _ordered([_short_name(n, p.name()) for n in names])))
+    return out
+
+
+def read_exr(path, part=None):
+    """Read one part of an EXR file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    part : int or str, optional
+        Part index or part name. By default the first part that has R, G and
+        B channels, or part 0 if none has.
+
+    Returns
+    -------
+    array : (H, W, C) float32
+        Row 0 is the top row. Half and float (and uint) pixels become float32.
+    channels : list of str
+        Channel names, R, G, B, A first when present, then the others in file
+        order; a ``"<part name>."`` prefix is removed.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    ValueError
+        The file is not a readable EXR, the part does not exist, or its
+        channels are subsampled or deep.
+    """
+    path = os.fspath(path)
+    f = _open(path)
+    parts = f.parts
+    names = [p.name() for p in parts]
+    if part is None:
+        chosen = next((p for p in parts
+                       if {"R", "G", "B"} <= {_short_name(n, p.name()) for n in p.channels}),
+                      parts[0])
+    elif isinstance(part, str):
+        if part not in names:
+            raise ValueError(f"{path}: no part named {part!r} (parts: {names})")
+        chosen = parts[names.index(part)]
+    else:
+        if not 0 <= int(part) < len(parts):
+            raise ValueError(f"{path}: part index {part} out of range (file has {len(parts)} parts)")
+        chosen = parts[int(part)]
+    if chosen.type() not in (OpenEXR.scanlineimage, OpenEXR.tiledimage):
+        raise ValueError(f"{path}: part {chosen.name()!r} is a deep image, which is not supported")
+    by_short = {_short_name(n, chosen.name()): c for n, c in chosen.channels.items()}
+    order = _ordered(list(by_short))
+    if not order:
+        raise ValueError(f"{path}: part {chosen.name()!r} has no channels")
+    planes = []
+    for n in order:
+        px = np.asarray(by_short[n].pixels)
+        if px.ndim != 2:
+            raise ValueError(f"{path}: channel {n!r} has pixel shape {px.shape}, expected 2-D")
+        if planes and px.shape != planes[0].shape:
+            raise ValueError(f"{path}: channel {n!r} is subsampled ({px.shape} vs {planes[0].shape}), "
+                             "which is not supported")
+        planes.append(px.astype(np.float32))
+    return np.stack(planes, axis=2), order
+
+
+def write_exr(path, array, channels=None, half=False):
+    """Write an array as a single-part, ZIP-compressed, scanline EXR.
+
+    The file is written to a temporary file in the same folder and then moved
+    into place, so a failure never leaves a partial file (and never touches
+    an existing file at ``path``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    array : (H, W) or (H, W, C) array
+        Linear values, row 0 at the top.
+    channels : list of str, optional
+        One name per channel. Default: "Y" for C = 1, "R", "G", "B" for 3,
+        "R", "G", "B", "A" for 4; other C need names.
+    half : bool
+        Store 16-bit half floats (values beyond +-65504 become infinite)
+        instead of 32-bit floats.
+    """
+    path = os.fspath(path)
+    a = np.asarray(array)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0:
+        raise ValueError(f"write_exr {path}: array must be (H, W) or (H, W, C) with H, W > 0, got {a.shape}")
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
+            or a.dtype == bool):
+        raise ValueError(f"write_exr {path}: array dtype {a.dtype} is not numeric")
+    c = a.shape[2]
+    if channels is None:
+        defaults = {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}
+        if c not in defaults:
+            raise ValueError(f"write_exr {path}: {c} channels need explicit channel names")
+        channels = defaults[c]
+    channels = [str(n) for n in channels]
+    if len(channels) != c:
+        raise ValueError(f"write_exr {path}: {len(channels)} channel names for {c} channels")
+    if len(set(channels)) != c or not all(channels):
+        raise ValueError(f"write_exr {path}: channel names must be unique and non-empty, got {channels}")
+    dtype = np.float16 if half else np.float32
+    data = {n: np.ascontiguousarray(a[:, :, k], dtype=dtype) for k, n in enumerate(channels)}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_path(path, suffix=".exr") as tmp:
+        try:
+            OpenEXR.File(header, data).write(tmp)
+        except RuntimeError as exc:  # the binding's error names only the temporary file
+            raise OSError(f"cannot write EXR file {path}: {exc}") from exc
