@@ -1,0 +1,270 @@
+"""Command line of the core, usable without Blender.
+
+::
+
+    python -m core solve BUNDLE --out DIR [--domain texture|image]
+                         [--lambda L] [--mu M] [--max-iter K] [--delta D]
+
+``solve`` loads a problem bundle (:mod:`core.bundle`), runs
+:func:`core.solver.solve` with progress on stderr, and writes into DIR:
+
+``views/<name>.exr``
+    Per-view reflectance, RGBA: RGB the reflectance (grey images are
+    repeated into R, G and B), 0 outside the mask, A = the view's mask.
+``albedo.exr``
+    Texture domain only: the texture, RGBA, 0 where unseen, A = seen texels.
+``lighting.json``
+    ``{"sh_basis": "[n1,n2,n3,1,n1n2,n1n3,n2n3,n1^2-n2^2,3n3^2-1]",
+    "channels": [...], "views": [{"name", "file", "sh": [[9 floats] per
+    channel]}]}``.
+``report.json``
+    Parameters, iterations, energy history, solve time and output files.
+
+``<name>`` is the view name made safe as a file name (:func:`safe_file_names`).
+Files are written atomically, and only after the solver succeeded. Bad input
+(a missing or invalid bundle, bad options) ends with one ``error:`` line on
+stderr and exit status 2; a failed write ends with status 1.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import re
+import sys
+import time
+
+import numpy as np
+
+from .atomic import atomic_path
+from .bundle import load_bundle
+from .exr import write_exr
+from .solver import SolverParams, solve
+
+__all__ = ["main", "build_parser", "safe_file_names", "write_outputs", "SH_BASIS"]
+
+SH_BASIS = "[n1,n2,n3,1,n1n2,n1n3,n2n3,n1^2-n2^2,3n3^2-1]"
+
+_WINDOWS_RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(1, 10)),
+                     *(f"lpt{i}" for i in range(1, 10))}
+_MAX_NAME = 100
+
+
+class _InputError(Exception):
+    """Bad input: reported as one line, exit status 2."""
+
+
+def safe_file_names(names) -> list[str]:
+    """File-name stems for view names: no path parts, unique, portable.
+
+    Characters other than ASCII letters, digits, ``.``, ``-`` and ``_`` become
+    ``_``; leading dots are dropped (no ``..``, no hidden files); Windows
+    device names get a ``_`` prefix; empty names become ``view<i>``. Names
+    that clash (ignoring case, for case-insensitive file systems) get
+    ``_2``, ``_3``, ... appended.
+    """
+    out, used = [], set()
+    for i, name in enumerate(names):
+        stem = re.sub(r"[^\w.\-]", "_", str(name), flags=re.ASCII).lstrip(".")[:_MAX_NAME].rstrip(". ")
+        if not stem:
+            stem = f"view{i}"
+        if stem.split(".")[0].lower() in _WINDOWS_RESERVED:
+            stem = "_" + stem
+        candidate, k = stem, 1
+        while candidate.lower() in used:
+            k += 1
+            candidate = f"{stem}_{k}"
+        used.add(candidate.lower())
+        out.append(candidate)
+    return out
+
+
+def _json_value(x):
+    """Plain JSON: numpy to Python, non-finite floats to null."""
+    if isinstance(x, dict):
+        return {str(k): _json_value(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_value(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_value(x.tolist()) if x.size <= 10000 else f"<array {x.dtype} {x.shape}>"
+    if isinstance(x, np.generic):
+        return _json_value(x.item())
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if x is None or isinstance(x, (bool, int, str)):
+        return x
+    return repr(x)
+
+
+def _write_json(path, obj):
+    with atomic_path(path, suffix=".json") as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(_json_value(obj), fh, indent=2, allow_nan=False)
+            fh.write("\n")
+
+
+def _rgba(values, alpha):
+    """(H, W, C) values and (H, W) bool alpha -> RGBA with 0 colour where alpha is 0."""
+    v = np.asarray(values, dtype=np.float32)
+    if v.shape[2] == 1:
+        v = np.repeat(v, 3, axis=2)
+    rgb = np.where(alpha[:, :, None], v, 0.0).astype(np.float32)
+    return np.concatenate([rgb, alpha[:, :, None].astype(np.float32)], axis=2)
+
+
+def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None) -> dict:
+    """Write a solver :class:`~core.solver.Result` into ``out_dir``.
+
+    See the module docstring for the files. ``out_dir`` and ``out_dir/views``
+    are created if needed.
+
+    Returns
+    -------
+    dict
+        Relative paths of the written files: ``"views"`` (list, in view order),
+        ``"lighting"``, ``"report"`` and, in the texture domain, ``"albedo"``.
+    """
+    m, c = problem.n_views, problem.channels
+    sigma = np.asarray(result.sigma, dtype=np.float64)
+    if sigma.shape != (m, c, 9):
+        raise ValueError(f"result: sigma has shape {sigma.shape}, expected {(m, c, 9)}")
+    if len(result.views) != m:
+        raise ValueError(f"result: {len(result.views)} views for {m} in the problem")
+    for i, v in enumerate(result.views):
+        if np.shape(v) != problem.images[i].shape:
+            raise ValueError(f"result: view {i} has shape {np.shape(v)}, "
+                             f"expected {problem.images[i].shape}")
+    os.makedirs(os.path.join(out_dir, "views"), exist_ok=True)
+    stems = safe_file_names(problem.names)
+    files = {"views": [f"views/{s}.exr" for s in stems]}
+    for i, rel in enumerate(files["views"]):
+        write_exr(os.path.join(out_dir, rel), _rgba(result.views[i], problem.masks[i]))
+    if result.texture is not None:
+        tex = np.asarray(result.texture, dtype=np.float32)
+        tex = tex[:, :, None] if tex.ndim == 2 else tex
+        seen = (np.all(np.isfinite(tex), axis=2) if result.seen is None
+                else np.asarray(result.seen, dtype=bool))
+        files["albedo"] = "albedo.exr"
+        write_exr(os.path.join(out_dir, files["albedo"]), _rgba(tex, seen))
+    channels = ["Y"] if c == 1 else ["R", "G", "B"]
+    files["lighting"] = "lighting.json"
+    _write_json(os.path.join(out_dir, files["lighting"]), {
+        "sh_basis": SH_BASIS,
+        "channels": channels,
+        "views": [{"name": str(problem.names[i]), "file": files["views"][i],
+                   "sh": sigma[i].tolist()} for i in range(m)],
+    })
+    files["report"] = "report.json"
+    energy = [float(e) for e in result.energy]
+    _write_json(os.path.join(out_dir, files["report"]), {
+        "bundle": None if bundle is None else os.path.abspath(bundle),
+        "params": dataclasses.asdict(params),
+        "n_views": m,
+        "channels": channels,
+        "iterations": int(result.iterations),
+        "energy": energy,
+        "time_s": None if elapsed is None else round(float(elapsed), 3),
+        "files": files,
+        "info": dict(result.info or {}),
+    })
+    return files
+
+
+def _positive(kind, allow_zero):
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if (value < 0 if allow_zero else value <= 0) or not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be {'>= 0' if allow_zero else '> 0'}: {text!r}")
+        return value
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m core",
+        description="Multi-view reflectance estimation (Melou et al. 2018) without Blender.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    s = sub.add_parser(
+        "solve", help="solve a problem bundle and write reflectance, albedo and lighting",
+        description="Solve a problem bundle (.npz, see core.bundle) and write views/<name>.exr, "
+                    "albedo.exr (texture domain), lighting.json and report.json into DIR.")
+    defaults = SolverParams()
+    s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")
+    s.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
+    s.add_argument("--domain", choices=("texture", "image"),
+                   help="unknowns per texel or per pixel (default: texture if the bundle has a "
+                        "texture layout, else image)")
+    s.add_argument("--lambda", dest="lam", type=_positive(float, True), default=defaults.lam,
+                   metavar="L", help=f"TV weight lambda (default {defaults.lam})")
+    s.add_argument("--mu", type=_positive(float, True), default=defaults.mu, metavar="M",
+                   help=f"consistency weight mu, image domain (default {defaults.mu})")
+    s.add_argument("--max-iter", type=_positive(int, False), default=defaults.max_iter, metavar="K",
+                   help=f"maximum outer iterations (default {defaults.max_iter})")
+    s.add_argument("--delta", type=_positive(float, False), default=defaults.delta, metavar="D",
+                   help=f"Huber delta (default {defaults.delta})")
+    return parser
+
+
+def _progress(fraction, message):
+    print(f"[{100 * float(fraction):5.1f}%] {message}", file=sys.stderr, flush=True)
+
+
+def _check_out_dir(out):
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise _InputError(f"--out {out}: exists and is not a folder")
+    parent = os.path.abspath(out)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent) or not os.access(parent, os.W_OK | os.X_OK):
+        raise _InputError(f"--out {out}: cannot write in {parent}")
+
+
+def _solve(args) -> int:
+    try:
+        _check_out_dir(args.out)
+        problem = load_bundle(args.bundle)
+    except (OSError, ValueError, _InputError) as exc:
+        raise _InputError(str(exc)) from exc
+    domain = args.domain or ("texture" if problem.texture is not None else "image")
+    if domain == "texture" and problem.texture is None:
+        raise _InputError(f"bundle {args.bundle}: the texture domain needs a texture layout "
+                          "(texel_pos), which the bundle lacks; use --domain image")
+    params = SolverParams(domain=domain, lam=args.lam, mu=args.mu, delta=args.delta,
+                          max_iter=args.max_iter)
+    print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    try:
+        result = solve(problem, params, progress=_progress)
+    except ValueError as exc:  # the solver's own checks of the problem
+        raise _InputError(f"bundle {args.bundle}: {exc}") from exc
+    elapsed = time.perf_counter() - t0
+    try:
+        os.makedirs(args.out, exist_ok=True)
+        write_outputs(args.out, problem, result, params, elapsed=elapsed, bundle=args.bundle)
+    except OSError as exc:
+        print(f"error: writing results to {args.out}: {exc}", file=sys.stderr)
+        return 1
+    print(f"{result.iterations} iterations in {elapsed:.1f} s; wrote {args.out}")
+    return 0
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return _solve(args)
+    except _InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
