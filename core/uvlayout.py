@@ -1,0 +1,345 @@
+"""Texture space of a UV-mapped triangle mesh, from plain arrays.
+
+:func:`texture_layout` rasterises the mesh in UV space into a
+:class:`core.problem.TextureLayout` (world position of every texel, and texel
+pairs across UV seams). The helpers :func:`texel_of_uv`, :func:`uv_of_texel`,
+:func:`texel_index` and :func:`bilinear_texels` hold the texel convention of
+:mod:`core.problem` in one place, so the solver and the fusion share it:
+texel ``(r, c)`` of an ``(N, N)`` texture has its centre at
+``u = (c + 0.5) / N``, ``v = 1 - (r + 0.5) / N`` (row 0 at the top, v up).
+
+Internally, rasterisation works in continuous texel coordinates ``(x, y) =
+(col, row)``, where texel centres sit on integers and texel ``(r, c)`` covers
+``[c - 0.5, c + 0.5] x [r - 0.5, r + 0.5]``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .problem import TextureLayout
+
+__all__ = ["texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout"]
+
+# Candidate (texel, triangle) pairs processed per block, to bound memory.
+_BLOCK = 1 << 20
+
+
+def _check_size(n):
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"texture size must be a positive integer, got {n!r}")
+    return int(n)
+
+
+def texel_of_uv(uv, n):
+    """Continuous texel coordinates of UV points.
+
+    Parameters
+    ----------
+    uv : (..., 2) array_like
+        Blender UV coordinates (u right, v up).
+    n : int
+        Texture size N.
+
+    Returns
+    -------
+    row, col : (...) float64 arrays
+        Texel ``(r, c)``'s centre is at ``(row, col) = (r, c)``.
+    """
+    n = _check_size(n)
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.shape[-1:] != (2,):
+        raise ValueError(f"texel_of_uv: uv must be (..., 2), got {uv.shape}")
+    return (1.0 - uv[..., 1]) * n - 0.5, uv[..., 0] * n - 0.5
+
+
+def uv_of_texel(row, col, n):
+    """UV coordinates of continuous texel coordinates (inverse of :func:`texel_of_uv`).
+
+    Parameters
+    ----------
+    row, col : array_like
+        Continuous texel coordinates (integers are texel centres).
+    n : int
+        Texture size N.
+
+    Returns
+    -------
+    uv : (..., 2) float64 array
+    """
+    n = _check_size(n)
+    row = np.asarray(row, dtype=np.float64)
+    col = np.asarray(col, dtype=np.float64)
+    return np.stack(np.broadcast_arrays((col + 0.5) / n, 1.0 - (row + 0.5) / n), axis=-1)
+
+
+def texel_index(uv, n):
+    """Flat index ``r * N + c`` of the texel containing each UV point.
+
+    Points on the outer border (u or v exactly 0 or 1) belong to the border
+    texels.
+
+    Parameters
+    ----------
+    uv : (..., 2) array_like
+    n : int
+
+    Returns
+    -------
+    (...) intp array
+        -1 where the point lies outside the unit square or is not finite.
+    """
+    row, col = texel_of_uv(uv, n)
+    with np.errstate(invalid="ignore"):
+        ok = (row >= -0.5) & (row <= n - 0.5) & (col >= -0.5) & (col <= n - 0.5)
+        r = np.clip(np.floor(np.where(ok, row, 0.0) + 0.5), 0, n - 1).astype(np.intp)
+        c = np.clip(np.floor(np.where(ok, col, 0.0) + 0.5), 0, n - 1).astype(np.intp)
+    return np.where(ok, r * n + c, -1)
+
+
+def bilinear_texels(uv, n):
+    """The four texels and bilinear weights around each UV point.
+
+    Parameters
+    ----------
+    uv : (..., 2) array_like
+    n : int
+
+    Returns
+    -------
+    index : (..., 4) intp array
+        Flat texel indices, -1 for neighbours outside the texture.
+    weight : (..., 4) float64 array
+        Bilinear weights, 0 for neighbours outside the texture, so they sum
+        to less than 1 near the texture's border (renormalise if needed).
+    """
+    row, col = texel_of_uv(uv, n)
+    r0 = np.floor(row)
+    c0 = np.floor(col)
+    fr = row - r0
+    fc = col - c0
+    idx, wts = [], []
+    for dr, dc, w in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        r = r0 + dr
+        c = c0 + dc
+        ok = (r >= 0) & (r < n) & (c >= 0) & (c < n)
+        idx.append(np.where(ok, np.where(ok, r, 0) * n + np.where(ok, c, 0), -1).astype(np.intp))
+        wts.append(np.where(ok, w, 0.0))
+    return np.stack(idx, axis=-1), np.stack(wts, axis=-1)
+
+
+def _check_mesh(tri_uv, tri_pos, tri_vert):
+    tri_uv = np.asarray(tri_uv, dtype=np.float64)
+    tri_pos = np.asarray(tri_pos, dtype=np.float64)
+    tri_vert = np.asarray(tri_vert)
+    if tri_uv.ndim != 3 or tri_uv.shape[1:] != (3, 2):
+        raise ValueError(f"texture_layout: tri_uv must be (T, 3, 2), got {tri_uv.shape}")
+    t = tri_uv.shape[0]
+    if t == 0:
+        raise ValueError("texture_layout: the mesh has no triangles")
+    if tri_pos.shape != (t, 3, 3):
+        raise ValueError(f"texture_layout: tri_pos must be ({t}, 3, 3) like tri_uv, got {tri_pos.shape}")
+    if tri_vert.shape != (t, 3):
+        raise ValueError(f"texture_layout: tri_vert must be ({t}, 3) like tri_uv, got {tri_vert.shape}")
+    if not np.issubdtype(tri_vert.dtype, np.integer):
+        raise ValueError(f"texture_layout: tri_vert must hold integer vertex indices, got {tri_vert.dtype}")
+    for name, a in (("tri_uv", tri_uv), ("tri_pos", tri_pos)):
+        bad = ~np.isfinite(a).reshape(t, -1).all(axis=1)
+        if bad.any():
+            raise ValueError(f"texture_layout: {name} of triangle {int(np.flatnonzero(bad)[0])} "
+                             f"is NaN or infinite ({int(bad.sum())} triangles)")
+    if tri_vert.min() < 0:
+        raise ValueError("texture_layout: tri_vert holds negative vertex indices")
+    return tri_uv, tri_pos, tri_vert.astype(np.int64)
+
+
+def _barycentric_planes(q):
+    """Per triangle, barycentrics as affine functions of texel coordinates.
+
+    Parameters
+    ----------
+    q : (T, 3, 2) vertices in (x, y) texel coordinates.
+
+    Returns
+    -------
+    a, b, c : (T, 3) arrays with ``lambda_i(x, y) = a_i x + b_i y + c_i``.
+    ok : (T,) bool, False for triangles of (nearly) zero UV area.
+    """
+    qj = np.roll(q, -1, axis=1)          # vertex i+1
+    qk = np.roll(q, -2, axis=1)          # vertex i+2
+    d = qk - qj                          # edge opposite vertex i
+    den = d[:, 0, 0] * (q[:, 0, 1] - qj[:, 0, 1]) - d[:, 0, 1] * (q[:, 0, 0] - qj[:, 0, 0])
+    # 1e-9 texel^2: such triangles cover no texel in any meaningful way.
+    ok = np.abs(den) > 1e-9
+    den = np.where(ok, den, 1.0)[:, None]
+    a = -d[..., 1] / den
+    b = d[..., 0] / den
+    c = (d[..., 1] * qj[..., 0] - d[..., 0] * qj[..., 1]) / den
+    return a, b, c, ok
+
+
+def _rasterise(q, tri_pos, n, margin):
+    """World position per texel by conservative rasterisation (see :func:`texture_layout`)."""
+    a, b, c, ok = _barycentric_planes(q)
+    grad = np.hypot(a, b)
+    # A texel square meets the half-plane lambda_i >= 0 iff lambda_i at its centre
+    # is >= -0.5 (|a| + |b|) (support of the square); margin grows the triangle.
+    slack = 0.5 * (np.abs(a) + np.abs(b)) + margin * grad + 1e-9
+    inv_grad = 1.0 / np.where(grad > 0, grad, 1.0)
+    grow = 0.5 + margin
+    lo = np.ceil(q.min(axis=1) - grow).astype(np.int64)
+    hi = np.floor(q.max(axis=1) + grow).astype(np.int64)
+    lo = np.clip(lo, 0, n - 1)
+    hi = np.clip(hi, -1, n - 1)
+    outside = (q.max(axis=1) + grow < 0) | (q.min(axis=1) - grow > n - 1)
+    hi = np.where(outside, lo - 1, hi)
+    w = np.where(ok, np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), 0)
+    h = np.where(ok, np.maximum(hi[:, 1] - lo[:, 1] + 1, 0), 0)
+    offs = np.concatenate([[0], np.cumsum(w * h)])
+    total = int(offs[-1])
+
+    best = np.full(n * n, -np.inf)
+    pos = np.full((n * n, 3), np.nan, dtype=np.float32)
+    for k0 in range(0, total, _BLOCK):
+        k = np.arange(k0, min(k0 + _BLOCK, total), dtype=np.int64)
+        t = np.searchsorted(offs, k, side="right") - 1
+        local = k - offs[t]
+        wt = w[t]
+        y = lo[t, 1] + local // wt
+        x = lo[t, 0] + local % wt
+        xf = x.astype(np.float64)
+        yf = y.astype(np.float64)
+        lam = [a[t, i] * xf + b[t, i] * yf + c[t, i] for i in range(3)]
+        keep = ((lam[0] + slack[t, 0] >= 0) & (lam[1] + slack[t, 1] >= 0)
+                & (lam[2] + slack[t, 2] >= 0))
+        t, x, y = t[keep], x[keep], y[keep]
+        lam = np.stack([li[keep] for li in lam], axis=1)
+        # Signed distance (texels) to the triangle's edge lines: >= 0 inside.
+        # Texels whose centre is covered win over those only overlapped.
+        d = lam * inv_grad[t]
+        score = np.minimum(np.minimum(d[:, 0], d[:, 1]), d[:, 2])
+        flat = y * n + x
+        np.maximum.at(best, flat, score)
+        win = score >= best[flat]
+        t, lam, flat = t[win], lam[win], flat[win]
+        # Outside the triangle, clamp the barycentrics so that the position
+        # stays on the surface (extrapolating a sliver could land far away).
+        lam = np.clip(lam, 0.0, None)
+        lam /= lam.sum(axis=1, keepdims=True)
+        pos[flat] = np.einsum("ki,kij->kj", lam, tri_pos[t])
+    return pos.reshape(n, n, 3)
+
+
+def _seam_pairs(q, tri_vert, inside, n):
+    """Texel pairs across UV seams (see :func:`texture_layout`)."""
+    t = q.shape[0]
+    ea = np.array([0, 1, 2])
+    eb = np.array([1, 2, 0])
+    ec = np.array([2, 0, 1])                       # vertex opposite each edge
+    va = tri_vert[:, ea].ravel()
+    vb = tri_vert[:, eb].ravel()
+    swap = va > vb
+    lo_v = np.where(swap, vb, va)
+    hi_v = np.where(swap, va, vb)
+    qa = q[:, ea].reshape(-1, 2)
+    qb = q[:, eb].reshape(-1, 2)
+    q_lo = np.where(swap[:, None], qb, qa)         # UV at the lower vertex index
+    q_hi = np.where(swap[:, None], qa, qb)
+    q_opp = q[:, ec].reshape(-1, 2)
+    key = lo_v * (int(tri_vert.max()) + 1) + hi_v
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    count = np.diff(np.r_[start, ks.size])
+    # Manifold edges only: an edge shared by more than two triangles is ambiguous.
+    two = start[count == 2]
+    e1 = order[two]
+    e2 = order[two + 1]
+    gap = np.maximum(np.abs(q_lo[e1] - q_lo[e2]).max(axis=1), np.abs(q_hi[e1] - q_hi[e2]).max(axis=1))
+    seam = gap > 1e-3                               # in texels
+    e1, e2 = e1[seam], e2[seam]
+    if e1.size == 0:
+        return np.zeros((0, 2), dtype=np.intp)
+    len1 = np.linalg.norm(q_hi[e1] - q_lo[e1], axis=1)
+    len2 = np.linalg.norm(q_hi[e2] - q_lo[e2], axis=1)
+    ns = np.ceil(np.maximum(len1, len2)).astype(np.int64) + 1
+    e = np.repeat(np.arange(e1.size), ns)
+    k = np.arange(e.size) - np.repeat(np.cumsum(ns) - ns, ns)
+    s = ((k + 0.5) / ns[e])[:, None]
+
+    def texel(edge):
+        p0, p1, po = q_lo[edge], q_hi[edge], q_opp[edge]
+        p = p0[e] + s * (p1 - p0)[e]
+        # Step half a texel into the triangle, so the pair links the texels on
+        # each side of the seam rather than the gutter texel the edge crosses.
+        d = p1 - p0
+        nrm = np.stack([-d[:, 1], d[:, 0]], axis=1)
+        nrm *= np.sign(np.sum(nrm * (po - p0), axis=1))[:, None]
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-12)[:, None]
+        p = p + 0.5 * nrm[e]
+        x = np.floor(p[:, 0] + 0.5).astype(np.int64)
+        y = np.floor(p[:, 1] + 0.5).astype(np.int64)
+        ok = (x >= 0) & (x < n) & (y >= 0) & (y < n)
+        flat = np.where(ok, y * n + x, 0)
+        return flat, ok & inside.ravel()[flat]
+
+    fa, oka = texel(e1)
+    fb, okb = texel(e2)
+    ok = oka & okb & (fa != fb)
+    pairs = np.stack([np.minimum(fa[ok], fb[ok]), np.maximum(fa[ok], fb[ok])], axis=1)
+    return np.unique(pairs, axis=0).astype(np.intp)
+
+
+def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
+    """Rasterise a UV-mapped triangle mesh into a texture layout.
+
+    Parameters
+    ----------
+    tri_uv : (T, 3, 2) array_like
+        UV coordinates of each triangle corner (Blender's loop-triangle UVs).
+    tri_pos : (T, 3, 3) array_like
+        World positions of each triangle corner.
+    tri_vert : (T, 3) int array_like
+        Mesh vertex index of each corner; two triangles that share an edge
+        share its two vertex indices, whatever their UVs.
+    size : int
+        Texture size N.
+    margin : float, optional
+        Grow every triangle by this many texels in UV before rasterising
+        (default 0: only texels that the triangle overlaps).
+
+    Returns
+    -------
+    TextureLayout
+        ``texel_pos`` is the world position of every texel that a triangle
+        overlaps (conservative rasterisation), NaN elsewhere. A texel whose
+        centre lies in a triangle takes that triangle's barycentric
+        interpolation; one that a triangle only overlaps (island borders)
+        takes the position of the nearest triangle, with the barycentrics
+        clamped to the triangle so that every position lies on the surface.
+        ``seam_pairs`` links the texels on either side of every UV seam
+        (a mesh edge shared by two triangles whose UVs differ), sampled about
+        once per texel along the edge, as sorted unique ``(a, b)`` flat
+        indices with ``a < b``. Edges shared by more than two triangles are
+        ignored.
+
+    Raises
+    ------
+    ValueError
+        On badly shaped or non-finite input, or when no triangle covers a
+        texel.
+    """
+    n = _check_size(size)
+    margin = float(margin)
+    if not np.isfinite(margin) or margin < 0:
+        raise ValueError(f"texture_layout: margin must be >= 0, got {margin}")
+    tri_uv, tri_pos, tri_vert = _check_mesh(tri_uv, tri_pos, tri_vert)
+    row, col = texel_of_uv(tri_uv, n)
+    q = np.stack([col, row], axis=-1)              # (T, 3, 2) as (x, y)
+    pos = _rasterise(q, tri_pos, n, margin)
+    inside = np.all(np.isfinite(pos), axis=2)
+    if not inside.any():
+        raise ValueError(f"texture_layout: no triangle covers any texel of the {n}x{n} texture "
+                         "(are the UVs inside [0, 1]?)")
+    pairs = _seam_pairs(q, tri_vert, inside, n)
+    return TextureLayout(texel_pos=pos, seam_pairs=pairs)
