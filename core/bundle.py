@@ -213,6 +213,9 @@ def _problem_from(path, z: _Keys) -> Problem:
     names = z["names"]
     if names.shape != (m,) or names.dtype.kind not in "US":
         raise ValueError(f"bundle {path}: 'names' must be {m} strings, got {names.dtype} of shape {names.shape}")
+    images = [z.numeric(f"image_{i}") for i in range(m)]
+    masks = [z.mask(f"mask_{i}") for i in range(m)]
+    normals = [z.numeric(f"normal_{i}") for i in range(m)]
     optional = {}
     for what in _PER_VIEW_OPTIONAL:
         have = [f"{what}_{i}" in z for i in range(m)]
@@ -230,9 +233,9 @@ def _problem_from(path, z: _Keys) -> Problem:
         seams = z.index("seam_pairs") if "seam_pairs" in z else None
         texture = TextureLayout(z.numeric("texel_pos"), seams)
     return Problem(
-        images=[z.numeric(f"image_{i}") for i in range(m)],
-        masks=[z.mask(f"mask_{i}") for i in range(m)],
-        normals=[z.numeric(f"normal_{i}") for i in range(m)],
+        images=images,
+        masks=masks,
+        normals=normals,
         correspondences=corr,
         uv=optional["uv"],
         texture=texture,

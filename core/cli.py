@@ -5,6 +5,7 @@
     python -m core solve BUNDLE --out DIR [--domain texture|image]
                          [--lambda L] [--mu M] [--max-iter K] [--delta D]
 
+Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``solve`` loads a problem bundle (:mod:`core.bundle`), runs
 :func:`core.solver.solve` with progress on stderr, and writes into DIR:
 

@@ -82,7 +82,8 @@ def read_exr(path, part=None):
     Returns
     -------
     array : (H, W, C) float32
-        Row 0 is the top row. Half and float (and uint) pixels become float32.
+        The part's data window; row 0 is the top row. Half, float and uint
+        pixels become float32.
     channels : list of str
         Channel names, R, G, B, A first when present, then the others in file
         order; a ``"<part name>."`` prefix is removed.
