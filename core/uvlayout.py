@@ -178,17 +178,45 @@ def _barycentric_planes(q):
     return a, b, c, ok
 
 
+def _closest_on_boundary(qt, x, y):
+    """Barycentrics of the point of each triangle's boundary closest to (x, y).
+
+    Parameters
+    ----------
+    qt : (K, 3, 2) triangle vertices; x, y : (K,) points (outside the triangles).
+    """
+    p = np.stack([x, y], axis=1).astype(np.float64)
+    k = np.arange(p.shape[0])
+    best_d = np.full(p.shape[0], np.inf)
+    lam = np.zeros((p.shape[0], 3))
+    for i in range(3):
+        j, m = (i + 1) % 3, (i + 2) % 3
+        d = qt[:, m] - qt[:, j]
+        s = np.clip(np.sum((p - qt[:, j]) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0, 1)
+        dist = np.sum((qt[:, j] + s[:, None] * d - p) ** 2, axis=1)
+        better = dist < best_d
+        best_d[better] = dist[better]
+        lam[better] = 0.0
+        lam[k[better], j] = 1.0 - s[better]
+        lam[k[better], m] = s[better]
+    return lam
+
+
 def _rasterise(q, tri_pos, n, margin):
     """World position per texel by conservative rasterisation (see :func:`texture_layout`)."""
     a, b, c, ok = _barycentric_planes(q)
     grad = np.hypot(a, b)
-    # A texel square meets the half-plane lambda_i >= 0 iff lambda_i at its centre
-    # is >= -0.5 (|a| + |b|) (support of the square); margin grows the triangle.
-    slack = 0.5 * (np.abs(a) + np.abs(b)) + margin * grad + 1e-9
+    # A texel counts when its bilinear footprint, the square of half-side 1
+    # around its centre, meets the triangle (grown by margin): then every
+    # bilinear lookup inside a triangle finds data. The square meets the
+    # half-plane lambda_i >= 0 iff lambda_i at its centre is >= -(|a| + |b|)
+    # (the square's support). A mere touch (< 1e-6 texel) does not count.
+    slack = (np.abs(a) + np.abs(b)) + (margin - 1e-6) * grad
     inv_grad = 1.0 / np.where(grad > 0, grad, 1.0)
-    grow = 0.5 + margin
-    lo = np.ceil(q.min(axis=1) - grow).astype(np.int64)
-    hi = np.floor(q.max(axis=1) + grow).astype(np.int64)
+    grow = 1.0 + margin
+    # Texels whose square overlaps the grown bounding box by more than 1e-6.
+    lo = np.floor(q.min(axis=1) - grow + 1e-6).astype(np.int64) + 1
+    hi = np.ceil(q.max(axis=1) + grow - 1e-6).astype(np.int64) - 1
     lo = np.clip(lo, 0, n - 1)
     hi = np.clip(hi, -1, n - 1)
     outside = (q.max(axis=1) + grow < 0) | (q.min(axis=1) - grow > n - 1)
@@ -222,10 +250,11 @@ def _rasterise(q, tri_pos, n, margin):
         np.maximum.at(best, flat, score)
         win = score >= best[flat]
         t, lam, flat = t[win], lam[win], flat[win]
-        # Outside the triangle, clamp the barycentrics so that the position
-        # stays on the surface (extrapolating a sliver could land far away).
-        lam = np.clip(lam, 0.0, None)
-        lam /= lam.sum(axis=1, keepdims=True)
+        # Outside the triangle, take the closest point of the triangle, so that
+        # positions stay on the surface (extrapolating a sliver could land far).
+        out = np.flatnonzero(score[win] < 0)
+        if out.size:
+            lam[out] = _closest_on_boundary(q[t[out]], x[win][out], y[win][out])
         pos[flat] = np.einsum("ki,kij->kj", lam, tri_pos[t])
     return pos.reshape(n, n, 3)
 
@@ -306,17 +335,19 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
         Texture size N.
     margin : float, optional
         Grow every triangle by this many texels in UV before rasterising
-        (default 0: only texels that the triangle overlaps).
+        (default 0).
 
     Returns
     -------
     TextureLayout
-        ``texel_pos`` is the world position of every texel that a triangle
-        overlaps (conservative rasterisation), NaN elsewhere. A texel whose
+        ``texel_pos`` is the world position of every texel used by a
+        bilinear lookup somewhere on a triangle (conservative rasterisation:
+        the open square of half-side 1 texel around the texel's centre meets
+        the triangle grown by ``margin``), NaN elsewhere. A texel whose
         centre lies in a triangle takes that triangle's barycentric
-        interpolation; one that a triangle only overlaps (island borders)
-        takes the position of the nearest triangle, with the barycentrics
-        clamped to the triangle so that every position lies on the surface.
+        interpolation; one at an island border, whose centre no triangle
+        covers, takes the closest point of the nearest triangle, so that
+        every position lies on the surface.
         ``seam_pairs`` links the texels on either side of every UV seam
         (a mesh edge shared by two triangles whose UVs differ), sampled about
         once per texel along the edge, as sorted unique ``(a, b)`` flat
