@@ -1,19 +1,45 @@
-"""Alternating majorization-minimization solver (Melou et al. 2018, section 4).
+"""Alternating majorization-minimization (Melou et al. 2018, section 4).
 
-API contract (implementation in progress)::
+The energy (eq. var) is, per colour channel,
 
-    result = solve(problem, SolverParams(domain="texture"), progress=None, cancel=None)
+``E(rho, sigma) = sum_o beta_o phi(rho[u_o] sigma_v(o) . nu_o - I_o)
++ lambda sum_TV w_e phi((B rho)_e) + mu sum_corr w_e phi((B rho)_e)``
 
-``progress(fraction: float, message: str)`` is called now and then; ``cancel()``
-returns True to stop, and then :class:`Cancelled` is raised.
+(see :mod:`core.operators` for the two discretisations). Each outer
+iteration majorises every Huber term by its quadratic psi_delta at the
+current point, then
+
+1. rho-step: minimises the quadratic majorant, a sparse weighted least
+   squares, by Jacobi-preconditioned CG warm-started from the current rho;
+2. sigma-step: one 9x9 weighted least squares per view and channel, from the
+   45 precomputed products of the SH basis.
+
+Both steps can only lower the majorant, so the energy never increases; a
+step that would raise it through float32 round-off is rejected. The channels
+are independent problems and run in parallel threads (the sparse products and
+NumPy kernels release the GIL).
+
+Scale. The data term is invariant under ``(k rho, sigma / k)`` while the
+regularisers shrink with k, so the scale drifts. During the iterations it is
+pinned by keeping the constant SH coefficient of view 0 at its start value
+(1); at the end, rho and sigma are rescaled so that the mean shading over the
+observations is 1 in every channel. The output albedo is therefore in the
+units of the images: the reflectance that the photos would show under a
+shading of average brightness.
 """
 from __future__ import annotations
 
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SolverParams", "Result", "Cancelled", "solve"]
+from .huber import huber, mm_weight
+from .operators import Discretization, image_domain, texture_domain
+from .sh import DIFFUSE, unpack_products
+
+__all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
 
 
 class Cancelled(Exception):
@@ -22,26 +48,332 @@ class Cancelled(Exception):
 
 @dataclass
 class SolverParams:
-    domain: str = "texture"          # "texture" or "image"
-    lam: float = 5.0                 # lambda, TV weight
-    mu: float = 1000.0               # mu, consistency weight (image domain)
-    delta: float = 1e-4              # Huber delta
+    """Parameters of :func:`solve`.
+
+    Attributes
+    ----------
+    domain : {"texture", "image"}
+        Where the reflectance lives: on the texels of the UV map, or in one map
+        per view as in the paper.
+    lam, mu : float
+        Weights of the TV and of the multi-view consistency term (image domain).
+    delta : float
+        Huber parameter.
+    max_iter, min_iter : int
+        Bounds on the outer iterations (the stopping test is skipped before
+        ``min_iter``, so a warm start cannot stop the loop at once).
+    tol : float
+        Stop when the relative energy change falls below it.
+    cg_iter : int
+        CG iterations per rho-step.
+    continuation : int
+        Number of first iterations with lambda lowered geometrically from
+        ``lam * continuation_factor`` to ``lam`` (0 = off). The energy history
+        only records the iterations at the final lambda.
+    threads : int
+        Channels solved at once.
+    """
+
+    domain: str = "texture"
+    lam: float = 5.0
+    mu: float = 1000.0
+    delta: float = 1e-4
     max_iter: int = 50
-    tol: float = 1e-3                # relative energy change to stop
     min_iter: int = 5
+    tol: float = 1e-3
     cg_iter: int = 30
+    continuation: int = 0
+    continuation_factor: float = 1000.0
+    continuation_delta: float = 1.0
+    normalise_correspondences: bool = True
+    threads: int = 2
+
+    def check(self):
+        if self.domain not in ("texture", "image"):
+            raise ValueError(f"solver: domain must be 'texture' or 'image', got {self.domain!r}")
+        for name in ("lam", "mu", "delta"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
+        if self.delta <= 0:
+            raise ValueError("solver: delta must be > 0")
+        if self.max_iter < 1 or self.cg_iter < 1:
+            raise ValueError("solver: max_iter and cg_iter must be >= 1")
+        if not 0 <= self.continuation < self.max_iter:
+            raise ValueError("solver: continuation must be in [0, max_iter)")
 
 
 @dataclass
 class Result:
-    sigma: np.ndarray                # (m, C, 9) lighting per view and channel
-    views: list                      # per-view reflectance (H, W, C) float32, NaN outside masks
-    energy: list                     # energy after each outer iteration (index 0: start)
+    """Output of :func:`solve`.
+
+    Attributes
+    ----------
+    sigma : (m, C, 9) array
+        Lighting per view and channel.
+    views : list of (H, W, C) float32 arrays
+        Reflectance seen through each view, NaN outside its mask.
+    energy : list of float
+        Energy at the final lambda, before iteration 1 and after each
+        iteration of that phase (before the final rescaling).
+    iterations : int
+        Outer iterations done, continuation included.
+    texture : (N, N, C) float32 array or None
+        Texture domain: the albedo texture, NaN on texels no pixel saw.
+    seen : (N, N) bool array or None
+        Texture domain: texels with data.
+    """
+
+    sigma: np.ndarray
+    views: list
+    energy: list
     iterations: int
-    texture: np.ndarray | None = None   # (N, N, C) float32 texture domain only, NaN where unseen
-    seen: np.ndarray | None = None      # (N, N) bool, texels with data
+    texture: np.ndarray | None = None
+    seen: np.ndarray | None = None
     info: dict = field(default_factory=dict)
 
 
-def solve(problem, params=None, progress=None, cancel=None) -> Result:
-    raise NotImplementedError
+def _shading(d: Discretization, sigma: np.ndarray) -> np.ndarray:
+    """``sigma_v . nu_p`` for every pixel p of every view v; sigma is (m, 9)."""
+    out = np.empty(d.nu.shape[0], dtype=np.float32)
+    for v in range(d.n_views):
+        a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        out[a:b] = d.nu[a:b] @ sigma[v].astype(np.float32)
+    return out
+
+
+def _channel_energy(d, rho, shade, values_c, s, delta):
+    r = rho[d.obs_unknown] * shade[d.obs_pixel] - values_c[d.obs_pixel]
+    data = float(np.dot(d.obs_weight.astype(np.float64), huber(r.astype(np.float64), delta)))
+    reg = float(np.dot(s, huber((d.B @ rho).astype(np.float64), delta))) if d.B.shape[0] else 0.0
+    return data + reg
+
+
+def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu: float, delta: float) -> float:
+    """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
+    s = d.row_scale(lam, mu).astype(np.float64)
+    return sum(_channel_energy(d, rho[:, c], _shading(d, sigma[:, c]), d.values[:, c], s, delta)
+               for c in range(rho.shape[1]))
+
+
+def _pcg(matvec, b, x, dinv, iters):
+    """Preconditioned CG on a SPD system, warm-started at x; every iteration lowers the quadratic."""
+    r = b - matvec(x)
+    z = dinv * r
+    p = z.copy()
+    rz = float(np.dot(r, z))
+    bnorm = float(np.linalg.norm(b)) or 1.0
+    for _ in range(iters):
+        if rz <= 0 or np.sqrt(abs(rz)) < 1e-7 * bnorm:
+            break
+        ap = matvec(p)
+        pap = float(np.dot(p, ap))
+        if pap <= 0:
+            break
+        alpha = rz / pap
+        x += alpha * p
+        r -= alpha * ap
+        z = dinv * r
+        rz_new = float(np.dot(r, z))
+        p *= rz_new / rz
+        p += z
+        rz = rz_new
+    return x
+
+
+class _Channel:
+    """The MM state of one colour channel."""
+
+    def __init__(self, d: Discretization, c: int, params: SolverParams):
+        self.d = d
+        self.values = np.ascontiguousarray(d.values[:, c])
+        self.rho = np.ascontiguousarray(d.rho0[:, c]).astype(np.float32)
+        self.sigma = np.tile(DIFFUSE, (d.n_views, 1))
+        self.delta = params.delta
+        self.cg_iter = params.cg_iter
+        self.mu = params.mu
+        self.lam = params.lam
+        self._set_lambda(params.lam)
+        self.shade = _shading(d, self.sigma)
+        self.e = self.energy()
+
+    def _set_lambda(self, lam):
+        self.lam = lam
+        self.s = self.d.row_scale(lam, self.mu).astype(np.float64)
+        self.s32 = self.s.astype(np.float32)
+
+    def set_stage(self, lam, delta):
+        self._set_lambda(lam)
+        self.delta = delta
+        self.e = self.energy()
+
+    def energy(self, rho=None, shade=None):
+        return _channel_energy(self.d, self.rho if rho is None else rho,
+                               self.shade if shade is None else shade, self.values, self.s, self.delta)
+
+    def residual(self, rho, shade):
+        d = self.d
+        return rho[d.obs_unknown] * shade[d.obs_pixel] - self.values[d.obs_pixel]
+
+    def rho_step(self):
+        d = self.d
+        a = self.shade[d.obs_pixel]
+        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(np.float32)
+        diag = np.bincount(d.obs_unknown, weights=w * a * a, minlength=d.n_unknowns).astype(np.float32)
+        rhs = np.bincount(d.obs_unknown, weights=w * a * self.values[d.obs_pixel],
+                          minlength=d.n_unknowns).astype(np.float32)
+        if d.B.shape[0]:
+            sw = self.s32 * mm_weight(d.B @ self.rho, self.delta).astype(np.float32)
+            B, BT = d.B, d.BT
+            matvec = lambda x: diag * x + BT @ (sw * (B @ x))  # noqa: E731
+            jacobi = diag + d.B2T @ sw
+        else:
+            matvec = lambda x: diag * x  # noqa: E731
+            jacobi = diag
+        dinv = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(np.float32)
+        rho = _pcg(matvec, rhs, self.rho.copy(), dinv, self.cg_iter)
+        e = self.energy(rho=rho)
+        if e <= self.e:
+            self.rho, self.e = rho, e
+
+    def sigma_step(self):
+        d = self.d
+        rho_o = self.rho[d.obs_unknown]
+        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(np.float32)
+        npix = d.nu.shape[0]
+        g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
+        h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
+        sigma = self.sigma.copy()
+        for v in range(d.n_views):
+            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+            M = unpack_products(g[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+            b = h[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+            if v == 0:
+                # Pin the scale: the constant term of view 0 stays fixed.
+                free = np.array([0, 1, 2, 4, 5, 6, 7, 8])
+                rhs = b[free] - M[free, 3] * sigma[0, 3]
+                sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+            else:
+                sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
+        shade = _shading(d, sigma)
+        e = self.energy(shade=shade)
+        if e <= self.e:
+            self.sigma, self.shade, self.e = sigma, shade, e
+
+    def step(self):
+        self.rho_step()
+        self.sigma_step()
+        return self.e
+
+
+def solve(problem, params: SolverParams | None = None, progress=None, cancel=None) -> Result:
+    """Estimate reflectance and lighting with alternating MM.
+
+    Parameters
+    ----------
+    problem : core.problem.Problem
+    params : SolverParams
+    progress : callable(fraction, message), optional
+    cancel : callable() -> bool, optional
+        Polled between steps; when it returns True, :class:`Cancelled` is raised.
+
+    Returns
+    -------
+    Result
+    """
+    params = params or SolverParams()
+    params.check()
+    t0 = time.perf_counter()
+
+    def report(frac, msg):
+        if progress is not None:
+            progress(float(frac), msg)
+
+    def check_cancel():
+        if cancel is not None and cancel():
+            raise Cancelled("cancelled by the user")
+
+    report(0.0, f"building the {params.domain}-domain problem")
+    if params.domain == "image":
+        d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
+    else:
+        d = texture_domain(problem)
+    check_cancel()
+    t_build = time.perf_counter() - t0
+    channels = [_Channel(d, c, params) for c in range(problem.channels)]
+    pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
+    history, cont_history = [], []
+    it = 0
+    try:
+        # lambda-continuation: start smooth, so that sigma first explains the shading.
+        for k in range(params.continuation):
+            check_cancel()
+            frac = 1 - (k + 1) / (params.continuation + 1)
+            lam_k = params.lam * params.continuation_factor ** frac
+            delta_k = params.delta * params.continuation_delta ** frac
+            for ch in channels:
+                ch.set_stage(lam_k, delta_k)
+            cont_history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            it += 1
+            report(it / params.max_iter, f"iteration {it} (lambda {lam_k:.3g})")
+        if params.continuation:
+            for ch in channels:
+                ch.set_stage(params.lam, params.delta)
+        history.append(sum(ch.e for ch in channels))
+        while it < params.max_iter:
+            check_cancel()
+            history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            it += 1
+            report(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
+            prev, cur = history[-2], history[-1]
+            n_main = len(history) - 1
+            if n_main >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
+                break
+    finally:
+        pool.shutdown(wait=True)
+    check_cancel()
+
+    rho = np.stack([ch.rho for ch in channels], axis=1)
+    sigma = np.stack([ch.sigma for ch in channels], axis=1)  # (m, C, 9)
+    # Output scale: mean shading over the observations is 1 in each channel.
+    for c, ch in enumerate(channels):
+        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        if np.isfinite(kappa) and kappa > 0:
+            rho[:, c] *= kappa
+            sigma[:, c] /= kappa
+    views, texture, seen = _outputs(problem, d, rho)
+    report(1.0, f"done in {it} iterations")
+    info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
+            "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_unknown.size),
+            "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
+            "continuation_energy": cont_history, "domain": d.domain}
+    return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
+
+
+def _outputs(problem, d: Discretization, rho: np.ndarray):
+    """Per-view reflectance maps, and the texture in the texture domain."""
+    C = rho.shape[1]
+    if d.domain == "image":
+        pix_rho = rho
+    else:
+        wsum = np.bincount(d.obs_pixel, weights=d.obs_weight, minlength=d.nu.shape[0])
+        pix_rho = np.stack([np.bincount(d.obs_pixel, weights=d.obs_weight * rho[d.obs_unknown, c],
+                                        minlength=d.nu.shape[0]) for c in range(C)], axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pix_rho = pix_rho / wsum[:, None]
+    views = []
+    for v in range(d.n_views):
+        mask = problem.masks[v]
+        out = np.full(mask.shape + (C,), np.nan, dtype=np.float32)
+        out[mask] = pix_rho[d.pixel_offsets[v]:d.pixel_offsets[v + 1]]
+        views.append(out)
+    texture = seen = None
+    if d.domain == "texture":
+        size = problem.texture.size
+        texture = np.full((size * size, C), np.nan, dtype=np.float32)
+        texture[d.texel_index] = rho
+        texture = texture.reshape(size, size, C)
+        seen = np.zeros(size * size, dtype=bool)
+        seen[d.texel_index] = True
+        seen = seen.reshape(size, size)
+    return views, texture, seen

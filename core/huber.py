@@ -1,0 +1,23 @@
+"""The Huber loss phi_delta (eq. def_phi_delta) and its quadratic majorant psi_delta (eq. psi_delta)."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["huber", "majorant", "mm_weight"]
+
+
+def huber(x, delta):
+    """phi_delta(x): x^2 / (2 delta) where |x| <= delta, |x| - delta / 2 elsewhere."""
+    a = np.abs(x)
+    return np.where(a <= delta, a * a / (2 * delta), a - delta / 2)
+
+
+def mm_weight(x0, delta):
+    """Curvature 1 / max(|x0|, delta) of psi_delta(.; x0), so psi = w x^2 / 2 + const."""
+    return 1.0 / np.maximum(np.abs(x0), delta)
+
+
+def majorant(x, x0, delta):
+    """psi_delta(x; x0): a quadratic in x that majorises phi_delta and touches it at x0."""
+    a0 = np.abs(x0)
+    return np.where(a0 <= delta, x * x / (2 * delta), x * x / (2 * np.maximum(a0, delta)) + a0 / 2 - delta / 2)

@@ -1,0 +1,310 @@
+"""Discretisations of the energy: data observations and difference operators.
+
+Both parameterisations of the reflectance share one form, so that the energy,
+the MM loop and the sigma-step are written once (:mod:`core.energy`,
+:mod:`core.solver`):
+
+* a data term over *observations* ``o``: ``beta_o * phi(rho[u_o] * a_o - I_o)``
+  where ``u_o`` is an unknown, ``a_o = sigma . nu`` the shading of the pixel
+  ``p_o`` that made the observation, and ``I_o`` its value;
+* a regulariser over the rows ``e`` of a sparse difference matrix ``B``:
+  ``s_e * phi((B rho)_e)``, with ``s_e = lambda * base_e`` for TV rows and
+  ``mu * base_e`` for correspondence rows.
+
+Image domain (the paper): one unknown per masked pixel of every view, one
+observation per pixel, TV rows between 4-neighbours inside each mask
+(Neumann boundary), and one row per correspondence.
+
+Texture domain (the paper's future work): one unknown per texel that some
+pixel lands in; each pixel splats its observation bilinearly onto the 4
+texels around its UV; TV rows between texel neighbours inside the islands
+and across seams, weighted by surface length. There is no mu-term: pixels
+that land on the same texel *are* the correspondences.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .problem import Problem
+from .sh import sh_basis, sh_products
+
+__all__ = ["Discretization", "image_domain", "texture_domain", "texel_coords"]
+
+
+@dataclass
+class Discretization:
+    """Everything the solver needs, as flat arrays (see the module docstring).
+
+    Pixels are the masked pixels of all views concatenated, view by view, in
+    row-major order; ``pixel_offsets[i]:pixel_offsets[i+1]`` are view i's.
+    """
+
+    domain: str
+    n_unknowns: int
+    pixel_offsets: np.ndarray      # (m+1,)
+    values: np.ndarray             # (P, C) float32 pixel values I
+    nu: np.ndarray                 # (P, 9) float32 SH basis of the pixel normals
+    nu_products: np.ndarray        # (P, 45) float32
+    obs_unknown: np.ndarray        # (O,) intp
+    obs_pixel: np.ndarray          # (O,) intp, sorted
+    obs_weight: np.ndarray         # (O,) float32 beta
+    B: sp.csr_matrix               # (E, n) float32
+    BT: sp.csr_matrix              # (n, E) float32
+    B2T: sp.csr_matrix             # (n, E) float32, squares of B's entries, transposed
+    n_tv: int                      # rows [0, n_tv) are TV, the rest correspondences
+    base: np.ndarray               # (E,) float32 base row weights
+    rho0: np.ndarray               # (n, C) float32 starting reflectance
+    texel_index: np.ndarray | None = None   # texture domain: flat texel of each unknown
+
+    @property
+    def n_views(self) -> int:
+        return len(self.pixel_offsets) - 1
+
+    def row_scale(self, lam: float, mu: float) -> np.ndarray:
+        s = self.base.copy()
+        s[:self.n_tv] *= lam
+        s[self.n_tv:] *= mu
+        return s
+
+
+def _masked_pixels(problem: Problem):
+    offsets = np.zeros(problem.n_views + 1, dtype=np.intp)
+    values, nus = [], []
+    for i in range(problem.n_views):
+        mask = problem.masks[i]
+        values.append(problem.images[i][mask])
+        nus.append(sh_basis(problem.normals[i][mask]))
+        offsets[i + 1] = offsets[i] + int(mask.sum())
+    nu = np.concatenate(nus)
+    return offsets, np.concatenate(values).astype(np.float32), nu, sh_products(nu)
+
+
+def _difference_rows(a, b, coef_b=None):
+    """CSR rows ``x[a] - sum_k coef_b[:, k] x[b[:, k]]`` as (rows, cols, vals) triplets."""
+    a = np.asarray(a, dtype=np.intp)
+    b = np.asarray(b, dtype=np.intp).reshape(a.size, -1)
+    if coef_b is None:
+        coef_b = np.ones(b.shape, dtype=np.float32)
+    k = b.shape[1]
+    rows = np.repeat(np.arange(a.size, dtype=np.intp), k + 1)
+    cols = np.concatenate([a[:, None], b], axis=1).ravel()
+    vals = np.concatenate([np.ones((a.size, 1), np.float32), -coef_b.astype(np.float32)], axis=1).ravel()
+    return rows, cols, vals
+
+
+def _assemble(triplets, n_unknowns):
+    rows, cols, vals, offset = [], [], [], 0
+    for r, c, v, count in triplets:
+        rows.append(r + offset)
+        cols.append(c)
+        vals.append(v)
+        offset += count
+    B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(offset, n_unknowns), dtype=np.float32)
+    B.sum_duplicates()
+    B.eliminate_zeros()
+    BT = B.T.tocsr()
+    B2T = BT.multiply(BT).tocsr()
+    return B, BT, B2T
+
+
+def _grid_edges(keep: np.ndarray):
+    """Horizontal and vertical neighbour pairs (flat indices) where both ends are kept."""
+    h, w = keep.shape
+    idx = np.arange(h * w).reshape(h, w)
+    hx = keep[:, :-1] & keep[:, 1:]
+    vy = keep[:-1, :] & keep[1:, :]
+    a = np.concatenate([idx[:, :-1][hx], idx[:-1, :][vy]])
+    b = np.concatenate([idx[:, 1:][hx], idx[1:, :][vy]])
+    horizontal = np.concatenate([np.ones(int(hx.sum()), bool), np.zeros(int(vy.sum()), bool)])
+    return a, b, horizontal
+
+
+def _bilinear(x, y, valid):
+    """Four corners (flat indices into a (H, W) grid) and weights of continuous (x, y).
+
+    Corners outside the grid or where ``valid`` is False get weight 0; the rest
+    are renormalised. Returns ``corners (K, 4)``, ``weights (K, 4)``.
+    """
+    h, w = valid.shape
+    x0 = np.floor(x).astype(np.intp)
+    y0 = np.floor(y).astype(np.intp)
+    fx = (x - x0).astype(np.float32)
+    fy = (y - y0).astype(np.float32)
+    xs = np.stack([x0, x0 + 1, x0, x0 + 1], axis=1)
+    ys = np.stack([y0, y0, y0 + 1, y0 + 1], axis=1)
+    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
+    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    xs = np.clip(xs, 0, w - 1)
+    ys = np.clip(ys, 0, h - 1)
+    flat = ys * w + xs
+    ok = inside & valid.ravel()[flat]
+    wts = np.where(ok, wts, 0)
+    total = wts.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wts = np.where(total > 0, wts / total, 0).astype(np.float32)
+    return flat, wts
+
+
+def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Discretization:
+    """The paper's parameterisation: one unknown per masked pixel of each view.
+
+    Correspondence rows link pixel ``(view_a, pixel_a)`` with the bilinear
+    interpolation of view ``view_b`` at ``xy_b`` over its masked pixels; a pair
+    whose 4 corners are not all masked straddles a silhouette and is dropped.
+    With ``normalise_correspondences``, each pair's weight is divided by the
+    mean number of pairs at its two ends, so that every pixel's consistency
+    weight sums to about 1 whatever the number of views that see it.
+    """
+    offsets, values, nu, prods = _masked_pixels(problem)
+    n = int(offsets[-1])
+    # Map (view, flat pixel) -> unknown.
+    lut = []
+    for i in range(problem.n_views):
+        m = problem.masks[i].ravel()
+        t = np.full(m.size, -1, dtype=np.intp)
+        t[m] = np.arange(offsets[i], offsets[i + 1])
+        lut.append(t)
+    triplets = []
+    n_tv = 0
+    for i in range(problem.n_views):
+        a, b, _ = _grid_edges(problem.masks[i])
+        r, c, v = _difference_rows(lut[i][a], lut[i][b])
+        triplets.append((r, c, v, a.size))
+        n_tv += a.size
+    base = [np.ones(n_tv, dtype=np.float32)]
+    corr = problem.correspondences
+    if corr is not None and len(corr):
+        ua = np.empty(len(corr), dtype=np.intp)
+        ub = np.empty((len(corr), 4), dtype=np.intp)
+        wb = np.empty((len(corr), 4), dtype=np.float32)
+        keep = np.zeros(len(corr), dtype=bool)
+        for j in np.unique(corr.view_b):
+            sel = np.flatnonzero(corr.view_b == j)
+            flat, wts = _bilinear(corr.xy_b[sel, 0], corr.xy_b[sel, 1], problem.masks[j])
+            full = (flat >= 0).all(axis=1) & problem.masks[j].ravel()[flat].all(axis=1)
+            ub[sel] = lut[j][flat]
+            wb[sel] = wts
+            keep[sel] = full
+        for i in np.unique(corr.view_a):
+            sel = corr.view_a == i
+            ua[sel] = lut[i][corr.pixel_a[sel]]
+        keep &= (ua >= 0) & (corr.view_a != corr.view_b) & (corr.weight > 0)
+        ua, ub, wb = ua[keep], ub[keep], wb[keep]
+        w = corr.weight[keep].astype(np.float64)
+        if normalise_correspondences and ua.size:
+            main_b = ub[np.arange(ub.shape[0]), np.argmax(wb, axis=1)]
+            count = np.bincount(np.concatenate([ua, main_b]), minlength=n)
+            w = w * 2.0 / (count[ua] + count[main_b])
+        r, c, v = _difference_rows(ua, ub, wb)
+        triplets.append((r, c, v, ua.size))
+        base.append(w.astype(np.float32))
+    B, BT, B2T = _assemble(triplets, n)
+    obs = np.arange(n, dtype=np.intp)
+    return Discretization(
+        domain="image", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
+        obs_unknown=obs, obs_pixel=obs, obs_weight=np.ones(n, dtype=np.float32),
+        B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy())
+
+
+def texel_coords(uv: np.ndarray, size: int):
+    """Continuous texel coordinates ``(x, y)`` = (column, row) of UVs, row 0 at v = 1."""
+    return uv[..., 0] * size - 0.5, (1.0 - uv[..., 1]) * size - 0.5
+
+
+def texture_domain(problem: Problem, max_edge_ratio: float = 4.0) -> Discretization:
+    """Reflectance on the texels of the mesh's UV map.
+
+    Each masked pixel splats its observation onto the 4 texels around its UV
+    with bilinear weights times its ``view_weight``. The data weights are
+    normalised so that an unknown carries a total data weight of 1 on
+    average, as a pixel does in the image domain, so that lambda means the
+    same in both domains. TV edges are weighted by the surface length of the
+    texel side they cross (relative to the median), and edges longer than
+    ``max_edge_ratio`` times the median are dropped: such texels touch in UV
+    but not on the surface.
+    """
+    if problem.texture is None or problem.uv is None:
+        raise ValueError("texture domain: the problem needs uv and a texture layout")
+    layout = problem.texture
+    size = layout.size
+    inside = layout.inside
+    offsets, values, nu, prods = _masked_pixels(problem)
+    tex_obs, pix_obs, w_obs = [], [], []
+    for i in range(problem.n_views):
+        mask = problem.masks[i]
+        x, y = texel_coords(problem.uv[i][mask].astype(np.float64), size)
+        flat, wts = _bilinear(x, y, inside)
+        if problem.view_weight is not None:
+            wts = wts * problem.view_weight[i][mask][:, None]
+        pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), 4)
+        keep = wts.ravel() > 0
+        tex_obs.append(flat.ravel()[keep])
+        pix_obs.append(pix[keep])
+        w_obs.append(wts.ravel()[keep])
+    tex_obs = np.concatenate(tex_obs)
+    pix_obs = np.concatenate(pix_obs)
+    w_obs = np.concatenate(w_obs).astype(np.float64)
+    if tex_obs.size == 0:
+        raise ValueError("texture domain: no pixel lands inside the UV islands")
+    seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
+    texels = np.flatnonzero(seen_count > 0)
+    lut = np.full(size * size, -1, dtype=np.intp)
+    lut[texels] = np.arange(texels.size)
+    n = texels.size
+    w_obs *= n / w_obs.sum()
+    obs_unknown = lut[tex_obs]
+
+    # TV edges between seen texels, weighted by the perpendicular texel side on the surface.
+    seen = np.zeros(size * size, dtype=bool)
+    seen[texels] = True
+    seen = seen.reshape(size, size)
+    a, b, horizontal = _grid_edges(seen)
+    pos = layout.texel_pos.reshape(-1, 3).astype(np.float64)
+    length = np.linalg.norm(pos[a] - pos[b], axis=1)
+    side = _texel_side_lengths(layout.texel_pos)
+    perp = np.where(horizontal, side[1].ravel()[a], side[0].ravel()[a])
+    perp = np.where(np.isfinite(perp), perp, length)
+    med = float(np.median(length)) if length.size else 1.0
+    good = length <= max_edge_ratio * med
+    a, b, perp = a[good], b[good], perp[good]
+    seam = layout.seam_pairs
+    seam = seam[(lut[seam[:, 0]] >= 0) & (lut[seam[:, 1]] >= 0) & (seam[:, 0] != seam[:, 1])]
+    ea = np.concatenate([a, seam[:, 0]])
+    eb = np.concatenate([b, seam[:, 1]])
+    base = np.concatenate([perp / med, np.ones(seam.shape[0])]).astype(np.float32)
+    r, c, v = _difference_rows(lut[ea], lut[eb])
+    B, BT, B2T = _assemble([(r, c, v, ea.size)], n)
+
+    order = np.argsort(pix_obs, kind="stable")
+    obs_unknown, pix_obs, w_obs = obs_unknown[order], pix_obs[order], w_obs[order].astype(np.float32)
+    # Start from the weighted mean of the observations at each texel.
+    rho0 = np.stack([np.bincount(obs_unknown, weights=w_obs * values[pix_obs, ch], minlength=n)
+                     for ch in range(values.shape[1])], axis=1)
+    rho0 /= np.bincount(obs_unknown, weights=w_obs, minlength=n)[:, None]
+    return Discretization(
+        domain="texture", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
+        obs_unknown=obs_unknown, obs_pixel=pix_obs, obs_weight=w_obs,
+        B=B, BT=BT, B2T=B2T, n_tv=B.shape[0], base=base, rho0=rho0.astype(np.float32), texel_index=texels)
+
+
+def _texel_side_lengths(texel_pos: np.ndarray):
+    """Surface length of each texel along u (columns) and along v (rows), NaN where unknown."""
+    p = texel_pos.astype(np.float64)
+    out = []
+    for axis in (1, 0):
+        d = np.linalg.norm(np.diff(p, axis=axis), axis=2)
+        pad_before = [(0, 0), (0, 0)]
+        pad_before[axis] = (1, 0)
+        pad_after = [(0, 0), (0, 0)]
+        pad_after[axis] = (0, 1)
+        both = np.stack([np.pad(d, pad_before, constant_values=np.nan),
+                         np.pad(d, pad_after, constant_values=np.nan)])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN texels stay NaN
+            out.append(np.nanmean(both, axis=0))
+    return out[0], out[1]
