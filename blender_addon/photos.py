@@ -1,0 +1,235 @@
+"""Find each camera's photo and read it as a linear float array.
+
+Where a photo is looked for, in order:
+
+1. ``camera.data.background_images[0].image`` (Photogrammetry Importer, fSpy);
+2. an image plane: a mesh ``<stem>_image_plane`` for camera ``<stem>_cam``
+   whose material has an Image Texture node (Photogrammetry Importer's option);
+3. a file in a folder given by the user, whose name (without extension)
+   matches the camera's name, or its stem without ``_cam``.
+
+Decoding: for 8-bit images ``Image.pixels`` holds the sRGB codes / 255 whatever
+the colour-space setting, so we apply the exact sRGB EOTF (unless the image is
+marked as linear or non-colour data). Float images (EXR, HDR, 16-bit) come out
+of ``Image.pixels`` already scene-linear.
+
+Nothing is left changed: an image loaded from the folder is removed after
+reading, and pixel buffers we caused to load are freed again.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .errors import DelightError
+
+__all__ = ["EXTENSIONS", "srgb_to_linear", "image_pixels", "find_photo", "downscale"]
+
+#: File endings tried in the images folder, in order of preference.
+EXTENSIONS = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".hdr", ".bmp", ".webp", ".tga")
+
+
+def srgb_to_linear(values):
+    """The exact sRGB EOTF (IEC 61966-2-1) of values in [0, 1]."""
+    v = np.asarray(values, dtype=np.float32)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def _is_linear_space(img):
+    cs = img.colorspace_settings
+    if getattr(cs, "is_data", False):
+        return True
+    name = cs.name.lower()
+    return name.startswith("linear") or name in ("non-color", "raw", "scene linear")
+
+
+def _image_path(img):
+    import bpy
+
+    if img.packed_file is not None:
+        return f"{img.filepath or img.name} (packed)"
+    return bpy.path.abspath(img.filepath, library=img.library) if img.filepath else "(no file)"
+
+
+def image_pixels(img, camera_name):
+    """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top.
+
+    Raises
+    ------
+    DelightError
+        The image has no pixels (missing or unreadable file), or a float
+        image holds NaN or infinite values.
+    """
+    was_loaded = img.has_data
+    try:
+        w, h = img.size  # touching size/pixels loads the buffer
+        if w == 0 or h == 0 or not img.has_data:
+            raise DelightError(f"camera {camera_name!r}: cannot read its photo {img.name!r} from "
+                               f"{_image_path(img)} (missing or unreadable file)")
+        ch = img.channels
+        flat = np.empty(w * h * ch, dtype=np.float32)
+        img.pixels.foreach_get(flat)
+        is_float, linear_space = img.is_float, _is_linear_space(img)
+    finally:
+        if not was_loaded and img.has_data and not img.is_dirty:
+            img.buffers_free()
+    px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
+    if ch >= 3:
+        rgb = px[:, :, :3]
+    else:  # grey (+ alpha)
+        rgb = np.repeat(px[:, :, :1], 3, axis=2)
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    if is_float:
+        bad = ~np.isfinite(rgb).all(axis=2)
+        if bad.any():
+            raise DelightError(f"camera {camera_name!r}: its photo {img.name!r} ({_image_path(img)}) has "
+                               f"{int(bad.sum())} NaN or infinite pixels")
+        return rgb
+    return rgb if linear_space else srgb_to_linear(rgb)
+
+
+def _from_background(cam_obj):
+    bgs = cam_obj.data.background_images
+    if len(bgs) and bgs[0].source == "IMAGE" and bgs[0].image is not None:
+        return bgs[0].image
+    return None
+
+
+def _plane_names(cam_name):
+    stems = [cam_name[:-4]] if cam_name.endswith("_cam") else []
+    return [s + "_image_plane" for s in stems + [cam_name]]
+
+
+def _from_image_plane(scene, cam_obj):
+    for name in _plane_names(cam_obj.name):
+        plane = scene.objects.get(name)
+        if plane is None or plane.type != "MESH":
+            continue
+        for slot in plane.material_slots:
+            mat = slot.material
+            if mat is None or mat.node_tree is None:
+                continue
+            for node in mat.node_tree.nodes:
+                if node.type == "TEX_IMAGE" and node.image is not None:
+                    return node.image
+    return None
+
+
+def _stems(cam_name):
+    stems = [cam_name]
+    if cam_name.endswith("_cam"):
+        stems.append(cam_name[:-4])
+    return stems
+
+
+def _from_folder(images_dir, cam_name):
+    """Path of the file in ``images_dir`` named after the camera, or None."""
+    try:
+        entries = os.listdir(images_dir)
+    except OSError:
+        return None
+    by_lower = {}
+    for e in sorted(entries):
+        by_lower.setdefault(e.lower(), e)
+    for stem in _stems(cam_name):
+        # The camera may carry the photo's full file name ("IMG_1.JPG_cam").
+        if os.path.splitext(stem)[1].lower() in EXTENSIONS and stem.lower() in by_lower:
+            return os.path.join(images_dir, by_lower[stem.lower()])
+        for ext in EXTENSIONS:
+            hit = by_lower.get((stem + ext).lower())
+            if hit is not None and os.path.isfile(os.path.join(images_dir, hit)):
+                return os.path.join(images_dir, hit)
+    return None
+
+
+def _load_file(path, camera_name):
+    """Read an image file through Blender, leaving ``bpy.data.images`` as it was."""
+    import bpy
+
+    before = set(bpy.data.images)
+    try:
+        img = bpy.data.images.load(path, check_existing=True)
+    except RuntimeError as exc:
+        raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
+    try:
+        return image_pixels(img, camera_name)
+    finally:
+        if img not in before:
+            bpy.data.images.remove(img)
+
+
+def find_photo(scene, cam_obj, images_dir=None):
+    """The camera's photo as ``(H, W, 3)`` float32 linear, and where it came from.
+
+    Returns
+    -------
+    photo : ndarray
+    source : str
+        ``"background image 'name'"``, ``"image plane 'obj' (image 'name')"``
+        or the file path.
+
+    Raises
+    ------
+    DelightError
+        No photo in any of the places (they are named), or it cannot be read.
+    """
+    img = _from_background(cam_obj)
+    if img is not None:
+        return image_pixels(img, cam_obj.name), f"background image {img.name!r}"
+    img = _from_image_plane(scene, cam_obj)
+    if img is not None:
+        return image_pixels(img, cam_obj.name), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
+                                                 f"(image {img.name!r})"
+    looked = ["its background images", f"an image plane object {' or '.join(map(repr, _plane_names(cam_obj.name)))}"]
+    if images_dir:
+        import bpy
+
+        folder = os.path.abspath(bpy.path.abspath(images_dir))
+        if not os.path.isdir(folder):
+            raise DelightError(f"images folder {folder} does not exist")
+        path = _from_folder(folder, cam_obj.name)
+        if path is not None:
+            return _load_file(path, cam_obj.name), path
+        looked.append(f"files named {' or '.join(map(repr, _stems(cam_obj.name)))} + an image extension in {folder}")
+    else:
+        looked.append("an images folder (none given)")
+    raise DelightError(f"camera {cam_obj.name!r} has no photo: looked at {', '.join(looked)}")
+
+
+def _area_matrix(n_in, n_out):
+    """Sparse ``(n_out, n_in)`` box-filter matrix: output pixel j averages input [j, j+1) * n_in/n_out."""
+    from scipy import sparse
+
+    ratio = n_in / n_out
+    k = int(np.ceil(ratio)) + 1
+    j = np.repeat(np.arange(n_out), k)
+    lo = np.arange(n_out) * ratio
+    i = (np.floor(lo).astype(np.int64)[:, None] + np.arange(k)).ravel()
+    a = np.repeat(lo, k)
+    b = a + ratio
+    overlap = np.clip(np.minimum(i + 1, b) - np.maximum(i, a), 0.0, None) / ratio
+    ok = (overlap > 0) & (i < n_in)
+    return sparse.csr_matrix((overlap[ok], (j[ok], i[ok])), shape=(n_out, n_in))
+
+
+def downscale(photo, max_mp):
+    """Area-average a photo down to at most ``max_mp`` megapixels.
+
+    Returns
+    -------
+    photo : (H', W', 3) float32
+    scale : (sx, sy)
+        ``W'/W`` and ``H'/H`` (1, 1 when the photo already fits).
+    """
+    h, w = photo.shape[:2]
+    if max_mp is None or max_mp <= 0 or w * h <= max_mp * 1e6:
+        return photo, (1.0, 1.0)
+    s = np.sqrt(max_mp * 1e6 / (w * h))
+    w2, h2 = max(1, int(np.floor(w * s))), max(1, int(np.floor(h * s)))
+    ay, ax = _area_matrix(h, h2), _area_matrix(w, w2)
+    c = photo.shape[2]
+    rows = (ay @ photo.reshape(h, w * c)).reshape(h2, w, c)
+    cols = ax @ rows.transpose(1, 0, 2).reshape(w, h2 * c)
+    out = cols.reshape(w2, h2, c).transpose(1, 0, 2)
+    return np.ascontiguousarray(out, dtype=np.float32), (w2 / w, h2 / h)

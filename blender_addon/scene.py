@@ -1,0 +1,252 @@
+"""Scene -> arrays: the target mesh, the cameras and their photos.
+
+:func:`gather` only reads the scene. Everything it returns is plain NumPy, so
+the rest of the run can happen off the main thread.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import photos as _photos
+from .camera import to_core_camera
+from .errors import DelightError
+
+__all__ = ["MeshArrays", "ViewInput", "SceneInputs", "gather", "mesh_arrays"]
+
+
+@dataclass
+class MeshArrays:
+    """The evaluated mesh as loop triangles, in world space.
+
+    Attributes
+    ----------
+    tri_pos : (T, 3, 3) float64
+        World positions of the triangles' corners.
+    tri_uv : (T, 3, 2) float32
+        UV of the corners in the active UV map.
+    tri_vert : (T, 3) intp
+        Vertex indices of the corners (shared corners identify shared edges).
+    uv_map : str
+        Name of the active UV map.
+    tri_normal : (T, 3, 3) float32, optional
+        Unit world-space corner normals: what Cycles shades with (smooth faces
+        interpolate them, flat faces repeat the face normal, custom normals
+        and sharp edges are honoured).
+    """
+
+    tri_pos: np.ndarray
+    tri_uv: np.ndarray
+    tri_vert: np.ndarray
+    uv_map: str
+    tri_normal: np.ndarray | None = None
+
+
+@dataclass
+class ViewInput:
+    """One camera and its photo, at the working resolution."""
+
+    name: str
+    camera: object  # core.camera.Camera on the photo's (possibly downscaled) pixel grid
+    photo: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
+    source: str
+
+
+@dataclass
+class SceneInputs:
+    """Everything the bake and the solver need from the scene."""
+
+    object_name: str
+    mesh: MeshArrays
+    views: list = field(default_factory=list)
+
+
+def _scene_and_view_layer(context_or_scene):
+    import bpy
+
+    if isinstance(context_or_scene, bpy.types.Scene):
+        scene = context_or_scene
+        ctx = bpy.context
+        if getattr(ctx, "scene", None) == scene and getattr(ctx, "view_layer", None) is not None:
+            return scene, ctx.view_layer
+        return scene, scene.view_layers[0]
+    ctx = context_or_scene
+    return ctx.scene, ctx.view_layer
+
+
+def _depsgraph(scene, view_layer):
+    import bpy
+
+    ctx = bpy.context
+    if getattr(ctx, "scene", None) == scene and getattr(ctx, "view_layer", None) == view_layer:
+        return ctx.evaluated_depsgraph_get()
+    dg = view_layer.depsgraph
+    dg.update()
+    return dg
+
+
+def _target(scene, view_layer, object_name):
+    if object_name:
+        obj = scene.objects.get(object_name)
+        if obj is None:
+            raise DelightError(f"no object named {object_name!r} in scene {scene.name!r}")
+    else:
+        obj = view_layer.objects.active
+        if obj is None:
+            raise DelightError("no mesh to delight: make the mesh the active object or name it")
+    if obj.type != "MESH":
+        raise DelightError(f"object {obj.name!r} is a {obj.type.lower()}, not a mesh")
+    if not obj.data.uv_layers:
+        raise DelightError(f"mesh {obj.name!r} has no UV map: unwrap it first")
+    return obj
+
+
+def _has_sharp_edges(mesh):
+    attr = mesh.attributes.get("sharp_edge")
+    if attr is None or attr.domain != "EDGE" or len(attr.data) == 0:
+        return False
+    flags = np.zeros(len(attr.data), dtype=bool)
+    attr.data.foreach_get("value", flags)
+    return bool(flags.any())
+
+
+def _shading_normals(mesh, tri_loop):
+    """Object-space shading normals of each triangle corner, ``(T * 3, 3)``, as Cycles shades.
+
+    Measured against Cycles' Normal pass (bpy 5.0): a smooth face interpolates
+    the *vertex* normals even next to flat faces (it does not use the corner
+    normals that flat neighbours split); a flat face uses its face normal.
+    Custom normals and sharp edges do split, so meshes with those use the
+    corner normals.
+    """
+    nt = len(tri_loop)
+    if mesh.has_custom_normals or _has_sharp_edges(mesh):
+        cn = np.empty(len(mesh.loops) * 3, dtype=np.float32)
+        mesh.corner_normals.foreach_get("vector", cn)
+        return cn.reshape(-1, 3)[tri_loop.ravel()]
+    vn = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+    mesh.vertex_normals.foreach_get("vector", vn)
+    tv = np.empty(nt * 3, dtype=np.int32)
+    mesh.loop_triangles.foreach_get("vertices", tv)
+    out = vn.reshape(-1, 3)[tv]
+    smooth = np.empty(nt, dtype=bool)
+    mesh.loop_triangles.foreach_get("use_smooth", smooth)
+    if not smooth.all():
+        pn = np.empty(len(mesh.polygons) * 3, dtype=np.float32)
+        mesh.polygon_normals.foreach_get("vector", pn)
+        poly = np.empty(nt, dtype=np.int32)
+        mesh.loop_triangles.foreach_get("polygon_index", poly)
+        flat = np.repeat(~smooth, 3)
+        out[flat] = np.repeat(pn.reshape(-1, 3)[poly], 3, axis=0)[flat]
+    return out
+
+
+def mesh_arrays(obj, depsgraph) -> MeshArrays:
+    """Loop triangles of the evaluated mesh in world space (see :class:`MeshArrays`)."""
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        if mesh.uv_layers.active is None:
+            raise DelightError(f"mesh {obj.name!r} has no UV map after its modifiers")
+        uv_map = obj.data.uv_layers.active.name if obj.data.uv_layers.active else mesh.uv_layers.active.name
+        mesh.calc_loop_triangles()
+        nt = len(mesh.loop_triangles)
+        if nt == 0:
+            raise DelightError(f"mesh {obj.name!r} has no faces")
+        tri_vert = np.empty(nt * 3, dtype=np.int32)
+        tri_loop = np.empty(nt * 3, dtype=np.int32)
+        mesh.loop_triangles.foreach_get("vertices", tri_vert)
+        mesh.loop_triangles.foreach_get("loops", tri_loop)
+        co = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+        mesh.vertices.foreach_get("co", co)
+        uv = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+        mesh.uv_layers.active.data.foreach_get("uv", uv)
+        cn = _shading_normals(mesh, tri_loop.reshape(nt, 3))
+        mw = np.array(ev.matrix_world, dtype=np.float64)
+    finally:
+        ev.to_mesh_clear()
+    tri_vert = tri_vert.reshape(nt, 3).astype(np.intp)
+    tri_loop = tri_loop.reshape(nt, 3)
+    pos = co.reshape(-1, 3).astype(np.float64) @ mw[:3, :3].T + mw[:3, 3]
+    # Normals transform with the inverse transpose (non-uniform scale, mirrors).
+    nmat = np.linalg.inv(mw[:3, :3]).T
+    nrm = cn.reshape(-1, 3).astype(np.float64) @ nmat.T
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+    return MeshArrays(tri_pos=pos[tri_vert], tri_uv=uv.reshape(-1, 2)[tri_loop],
+                      tri_vert=tri_vert, uv_map=uv_map,
+                      tri_normal=nrm.reshape(nt, 3, 3).astype(np.float32))
+
+
+def _cameras(scene, view_layer, camera_names, selected_only):
+    if camera_names:
+        cams = []
+        for name in camera_names:
+            obj = scene.objects.get(name)
+            if obj is None:
+                raise DelightError(f"no camera named {name!r} in scene {scene.name!r}")
+            if obj.type != "CAMERA":
+                raise DelightError(f"object {name!r} is a {obj.type.lower()}, not a camera")
+            if obj not in cams:
+                cams.append(obj)
+        return cams
+    cams = [o for o in scene.objects if o.type == "CAMERA"]
+    if selected_only:
+        cams = [o for o in cams if o.select_get(view_layer=view_layer)]
+        if not cams:
+            raise DelightError("no camera is selected")
+    if not cams:
+        raise DelightError(f"scene {scene.name!r} has no cameras")
+    return sorted(cams, key=lambda o: o.name)
+
+
+def gather(context_or_scene, object_name=None, camera_names=None, images_dir=None, working_res_mp=1.0,
+           selected_only=False) -> SceneInputs:
+    """Read the mesh, the cameras and their photos from the scene.
+
+    Parameters
+    ----------
+    context_or_scene : bpy.types.Context or bpy.types.Scene
+    object_name : str, optional
+        The mesh; default the active object.
+    camera_names : list of str, optional
+        The cameras; default every camera in the scene (or the selected ones).
+    images_dir : str, optional
+        Folder searched for a photo named after the camera when it has no
+        background image or image plane.
+    working_res_mp : float
+        Photos larger than this many megapixels are area-averaged down to fit,
+        and their cameras' intrinsics scaled to match. ``0`` or ``None``: keep.
+    selected_only : bool
+        Without ``camera_names``, take only the selected cameras.
+
+    Returns
+    -------
+    SceneInputs
+        Views sorted by camera name unless ``camera_names`` gives the order.
+
+    Raises
+    ------
+    DelightError
+        No mesh, no UVs, no cameras, a camera without a readable photo, a photo
+        that does not fit its camera, or a non-perspective camera. Nothing in
+        the scene or on disk is changed.
+    """
+    scene, view_layer = _scene_and_view_layer(context_or_scene)
+    obj = _target(scene, view_layer, object_name)
+    cams = _cameras(scene, view_layer, camera_names, selected_only)
+    for cam in cams:  # cheap checks first, before reading any photo
+        if cam.data.type != "PERSP":
+            raise DelightError(f"camera {cam.name!r} is {cam.data.type.lower()}; only perspective cameras "
+                               "are supported")
+    depsgraph = _depsgraph(scene, view_layer)
+    mesh = mesh_arrays(obj, depsgraph)
+    views = []
+    for cam in cams:
+        photo, source = _photos.find_photo(scene, cam, images_dir)
+        h, w = photo.shape[:2]
+        small, scale = _photos.downscale(photo, working_res_mp)
+        camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
+                                scale=scale)
+        views.append(ViewInput(name=cam.name, camera=camera, photo=small, source=source))
+    return SceneInputs(object_name=obj.name, mesh=mesh, views=views)
