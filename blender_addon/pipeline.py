@@ -296,15 +296,14 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     fuse_progress = _sub(progress, "fuse")
     fuse_progress(0.0, "texture")
     if opt.method == "texture":
-        texture, seen = result.texture, np.asarray(result.seen, dtype=bool)
-    else:
-        maps = result.views if result is not None else problem.images
-        fused = fuse_views(maps, masks, uvs, n, view_weight=weights, inside=layout.inside)
-        texture, seen = fused[..., :-1], fused[..., -1] > 0
-    albedo = fill_unseen(texture, seen, layout.inside, margin=4)
-    if opt.method == "texture":
+        seen = np.asarray(result.seen, dtype=bool)
+        albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
         views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     else:
+        # Image domain: fuse the per-view reflectance; project: the photos themselves.
+        maps = result.views if result is not None else problem.images
+        fused = fuse_views(maps, masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
+        albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
     times["fuse"] = time.perf_counter() - t
     _check_cancel(cancel)
