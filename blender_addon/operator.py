@@ -115,7 +115,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
                        description="Smoothness (total variation) weight")
     mu: FloatProperty(name="Mu", default=1000.0, min=0.0, description="Cross-view consistency weight (Image)")
     max_iter: IntProperty(name="Iterations", default=50, min=1, soft_max=500)
-    working_res: FloatProperty(name="Working Resolution", default=1.0, min=0.01, soft_max=16.0, unit="NONE",
+    working_res: FloatProperty(name="Working Resolution", default=1.0, min=0.001, soft_max=16.0, unit="NONE",
                                description="Photos are downscaled to at most this many megapixels")
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
@@ -128,7 +128,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     _prepared = None
 
     # -- options ---------------------------------------------------------------------------------
-    def options(self) -> pipeline.Options:
+    def pipeline_options(self) -> pipeline.Options:
         names = None
         if self.cameras == "COLLECTION":
             coll = bpy.data.collections.get(self.camera_collection)
@@ -170,7 +170,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     def execute(self, context):
         progress = _print_progress if bpy.app.background else None
         try:
-            report = pipeline.run(context.scene, self.options(), progress=progress)
+            report = pipeline.run(context.scene, self.pipeline_options(), progress=progress)
         except (DelightError, ValueError, Cancelled) as exc:
             return self._fail(exc)
         return self._done(report)
@@ -185,7 +185,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             def progress(f, m=""):
                 wm.progress_update(int(100 * f))
                 context.workspace.status_text_set(f"Delight: {m}")
-            self._prepared = pipeline.prepare(context.scene, self.options(), progress=progress)
+            self._prepared = pipeline.prepare(context.scene, self.pipeline_options(), progress=progress)
         except (DelightError, ValueError, Cancelled) as exc:
             self._cleanup(context)
             return self._fail(exc)

@@ -27,7 +27,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     lam: FloatProperty(name="Lambda", default=5.0, min=0.0, soft_max=100.0)
     mu: FloatProperty(name="Mu", default=1000.0, min=0.0)
     max_iter: IntProperty(name="Iterations", default=50, min=1, soft_max=500)
-    working_res: FloatProperty(name="Working MP", default=1.0, min=0.01, soft_max=16.0)
+    working_res: FloatProperty(name="Working MP", default=1.0, min=0.001, soft_max=16.0)
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
     out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//")
     overwrite: BoolProperty(name="Overwrite Files", default=False)

@@ -306,6 +306,7 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
         albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
     times["fuse"] = time.perf_counter() - t
+    fuse_progress(1.0, "done")
     _check_cancel(cancel)
     return Computed(albedo=np.asarray(albedo, dtype=np.float32), seen=seen, views=views,
                     sigma=None if result is None else np.asarray(result.sigma),

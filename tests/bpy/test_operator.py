@@ -1,0 +1,159 @@
+"""The operator and panel, registered in real Blender (background mode: INVOKE runs in-line)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from conftest import build_scene  # noqa: E402
+from scene_state import files_under, scene_state  # noqa: E402
+
+import blender_addon  # noqa: E402
+from blender_addon import pipeline  # noqa: E402
+from blender_addon.core.solver import Cancelled  # noqa: E402
+from blender_addon.operator import Job, get_status  # noqa: E402
+from blender_addon.panel import VIEW3D_PT_delight, operator_settings  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+
+@pytest.fixture(autouse=True)
+def addon():
+    blender_addon.register()
+    yield
+    blender_addon.unregister()
+
+
+@pytest.mark.parametrize("call", ["EXEC_DEFAULT", "INVOKE_DEFAULT"])
+def test_operator_writes_files_and_wires_the_material(tmp_path, call):
+    s = build_scene(str(tmp_path))
+    out = tmp_path / "out"
+    res = bpy.ops.delight.run(call, method="project", texture_size=16, out_dir=str(out))
+    assert res == {"FINISHED"}
+    assert {"Target_albedo.exr", "lighting.json", "report.json"} <= set(files_under(out))
+    assert len([p for p in files_under(out) if p.startswith("views/")]) == len(s.cameras)
+    mat = s.obj.material_slots[0].material
+    src = mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].links[0].from_node
+    assert src.name == "Delight Albedo" and src.image.name == "Target_albedo"
+    assert "Target_albedo" in get_status()
+
+
+def test_operator_options_reach_the_pipeline(tmp_path):
+    s = build_scene(str(tmp_path))
+    coll = bpy.data.collections.new("Cams")
+    s.scene.collection.children.link(coll)
+    for cam in s.cameras[:2]:
+        coll.objects.link(cam)
+    out = tmp_path / "out"
+    res = bpy.ops.delight.run(object_name="Target", cameras="COLLECTION", camera_collection="Cams",
+                              method="project", texture_size=16, working_res=0.001, out_dir=str(out))
+    assert res == {"FINISHED"}
+    report = json.loads((out / "report.json").read_text())
+    assert [c["name"] for c in report["cameras"]] == [c.name for c in s.cameras[:2]]
+    assert report["parameters"]["working_res_mp"] == pytest.approx(0.001)
+    assert all(c["size"][0] * c["size"][1] <= 1000 for c in report["cameras"])
+
+
+def test_operator_error_reports_and_changes_nothing(tmp_path):
+    s = build_scene(str(tmp_path))
+    for cam in s.cameras:
+        bpy.data.objects.remove(cam)
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="(?i)camera"):
+        bpy.ops.delight.run(method="project", texture_size=16, out_dir=str(tmp_path / "out"))
+    assert scene_state() == before
+    assert not (tmp_path / "out").exists()
+    assert get_status().startswith("Error:")
+
+
+def test_operator_out_dir_relative_to_an_unsaved_file_is_refused(tmp_path):
+    build_scene(str(tmp_path))
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="not saved"):
+        bpy.ops.delight.run(method="project", texture_size=16)   # default out_dir is "//"
+    assert scene_state() == before
+
+
+def test_operator_default_out_is_beside_the_saved_blend(tmp_path):
+    build_scene(str(tmp_path))
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    assert bpy.ops.delight.run(method="project", texture_size=16) == {"FINISHED"}
+    assert (tmp_path / "Target_albedo.exr").is_file() and (tmp_path / "report.json").is_file()
+
+
+def test_worker_job_runs_and_cancels_without_touching_the_scene(tmp_path):
+    s = build_scene(str(tmp_path))
+    opts = pipeline.Options(method="texture", texture_size=16, max_iter=3, out_dir=str(tmp_path / "out"))
+    before = scene_state()
+
+    job = Job(pipeline.prepare(s.scene, opts))
+    job.cancel()                                   # Esc before the worker starts its first check
+    job.start().join(60)
+    assert job.done and isinstance(job.error, Cancelled) and job.computed is None
+    assert scene_state() == before and not (tmp_path / "out").exists()
+
+    job = Job(pipeline.prepare(s.scene, opts)).start()
+    job.join(120)
+    assert job.done and job.error is None
+    messages = job.poll()
+    assert messages and messages[-1][0] == pytest.approx(0.95)
+    assert all(0.3 <= f <= 0.95 for f, _ in messages)   # the worker's share: solve and fuse
+    assert scene_state() == before                 # the worker never writes
+    rep = pipeline.finish(s.scene, job.prepared, job.computed)
+    assert rep.iterations >= 1 and (tmp_path / "out" / "Target_albedo.exr").is_file()
+
+
+def test_worker_job_cancelled_mid_solve(tmp_path):
+    s = build_scene(str(tmp_path))
+    opts = pipeline.Options(method="texture", texture_size=16, max_iter=50, out_dir=str(tmp_path / "out"))
+    job = Job(pipeline.prepare(s.scene, opts))
+    # Esc as soon as the solver reports: the progress queue is what the modal timer drains.
+    real_put = job.messages.put
+
+    def put(item):
+        real_put(item)
+        if item[1].startswith("solve:") and job.messages.qsize() > 1:
+            job.cancel()
+    job.messages.put = put
+    job.start().join(120)
+    assert isinstance(job.error, Cancelled)
+    assert any(m.startswith("solve:") for _, m in job.poll())
+
+
+def test_panel_and_settings_are_registered():
+    assert VIEW3D_PT_delight.bl_space_type == "VIEW_3D" and VIEW3D_PT_delight.bl_region_type == "UI"
+    assert VIEW3D_PT_delight.bl_category == "Delight"
+    assert hasattr(bpy.types, "VIEW3D_PT_delight")
+    s = bpy.context.scene.delight
+    assert s.method == "texture" and s.texture_size == 1024 and s.out_dir == "//"
+    mesh = bpy.data.objects.new("M", bpy.data.meshes.new("M"))
+    s.target = mesh
+    s.method, s.lam, s.overwrite = "image", 7.5, True
+    kw = operator_settings(s)
+    assert kw["object_name"] == "M" and kw["method"] == "image" and kw["lam"] == 7.5 and kw["overwrite"]
+    # Every setting the panel hands over is a property of the operator.
+    props = bpy.ops.delight.run.get_rna_type().properties.keys()
+    assert set(kw) <= set(props)
+
+
+def test_unregister_removes_everything():
+    blender_addon.unregister()
+    try:
+        assert not hasattr(bpy.types, "VIEW3D_PT_delight")
+        assert not hasattr(bpy.types.Scene, "delight")
+        assert "run" not in dir(bpy.ops.delight)
+    finally:
+        blender_addon.register()
+
+
+def test_working_res_downscales_the_photos(tmp_path):
+    build_scene(str(tmp_path))
+    out = tmp_path / "out"
+    assert bpy.ops.delight.run(method="project", texture_size=16, working_res=0.001, out_dir=str(out)) \
+        == {"FINISHED"}
+    from blender_addon.core.exr import read_exr
+    v, _ = read_exr(out / "views" / "view0_cam.exr")
+    assert v.shape[0] * v.shape[1] <= 1000 and np.isclose(v.shape[1] / v.shape[0], 64 / 48, rtol=0.1)
