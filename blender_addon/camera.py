@@ -62,10 +62,11 @@ def intrinsics(cam_data, render, width, height):
     """
     aspx, aspy = float(render.pixel_aspect_x), float(render.pixel_aspect_y)
     fit = cam_data.sensor_fit
+    # AUTO fits the larger side but always to sensor_width.
+    sensor = cam_data.sensor_height if fit == "VERTICAL" else cam_data.sensor_width
     if fit == "AUTO":
         rw, rh = _render_size(render)
         fit = "HORIZONTAL" if aspx * rw >= aspy * rh else "VERTICAL"
-    sensor = cam_data.sensor_height if fit == "VERTICAL" else cam_data.sensor_width
     ycor = aspy / aspx
     viewfac = ycor * height if fit == "VERTICAL" else float(width)
     fx = cam_data.lens / sensor * viewfac

@@ -9,9 +9,9 @@ Where a photo is looked for, in order:
    matches the camera's name, or its stem without ``_cam``.
 
 Decoding: for 8-bit images ``Image.pixels`` holds the sRGB codes / 255 whatever
-the colour-space setting, so we apply the exact sRGB EOTF (unless the image is
-marked as linear or non-colour data). Float images (EXR, HDR, 16-bit) come out
-of ``Image.pixels`` already scene-linear.
+the colour-space setting, so we apply the exact sRGB EOTF (photos are sRGB).
+Float images (EXR, HDR, 16-bit) come out of ``Image.pixels`` already
+scene-linear.
 
 Nothing is left changed: an image loaded from the folder is removed after
 reading, and pixel buffers we caused to load are freed again.
@@ -34,14 +34,6 @@ def srgb_to_linear(values):
     """The exact sRGB EOTF (IEC 61966-2-1) of values in [0, 1]."""
     v = np.asarray(values, dtype=np.float32)
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def _is_linear_space(img):
-    cs = img.colorspace_settings
-    if getattr(cs, "is_data", False):
-        return True
-    name = cs.name.lower()
-    return name.startswith("linear") or name in ("non-color", "raw", "scene linear")
 
 
 def _image_path(img):
@@ -70,7 +62,7 @@ def image_pixels(img, camera_name):
         ch = img.channels
         flat = np.empty(w * h * ch, dtype=np.float32)
         img.pixels.foreach_get(flat)
-        is_float, linear_space = img.is_float, _is_linear_space(img)
+        is_float = img.is_float
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
@@ -86,7 +78,7 @@ def image_pixels(img, camera_name):
             raise DelightError(f"camera {camera_name!r}: its photo {img.name!r} ({_image_path(img)}) has "
                                f"{int(bad.sum())} NaN or infinite pixels")
         return rgb
-    return rgb if linear_space else srgb_to_linear(rgb)
+    return srgb_to_linear(rgb)
 
 
 def _from_background(cam_obj):
