@@ -1,0 +1,173 @@
+"""The headless contract, run as real subprocesses: ``python -m blender_addon`` and the ``-P`` script path."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from conftest import ROOT, build_scene  # noqa: E402
+from scene_state import files_under  # noqa: E402
+
+from blender_addon.core.exr import read_exr  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+FAST = ["--method", "project", "--texture-size", "16"]
+
+
+def save_scene(tmp_path, **kw):
+    """The tiny scene saved as ``scene.blend``; return its path."""
+    s = build_scene(str(tmp_path), **kw)
+    path = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    return path, s
+
+
+def digest(path):
+    with open(path, "rb") as fh:
+        return hashlib.sha256(fh.read()).hexdigest()
+
+
+def run_cli(*args, cwd=ROOT):
+    env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "blender_addon", *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def run_script(blend, *args):
+    """As ``blender -b BLEND -P blender_addon/cli.py -- ARGS``: Blender opens the file, then runs the script."""
+    script = os.path.join(ROOT, "blender_addon", "cli.py")
+    code = ("import runpy, sys, bpy\n"
+            f"bpy.ops.wm.open_mainfile(filepath={str(blend)!r})\n"
+            f"sys.argv = ['blender', '-b', {str(blend)!r}, '-P', {script!r}, '--', *{list(map(str, args))!r}]\n"
+            f"runpy.run_path({script!r}, run_name='__main__')\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}   # the script must find the package itself
+    return subprocess.run([sys.executable, "-c", code], cwd="/", env=env, capture_output=True, text=True,
+                          timeout=300)
+
+
+def error_lines(proc):
+    return [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+
+
+def test_python_m_writes_the_promised_files_and_leaves_the_blend(tmp_path):
+    blend, s = save_scene(tmp_path)
+    before = digest(blend)
+    out = tmp_path / "out"
+    p = run_cli(blend, *FAST, "--out", out)
+    assert p.returncode == 0, p.stderr
+    names = [c.name for c in s.cameras]
+    assert files_under(out) == sorted(["Target_albedo.exr", "lighting.json", "report.json", "views"]
+                                      + [f"views/{n}.exr" for n in names])
+    a, ch = read_exr(out / "Target_albedo.exr")
+    assert a.shape == (16, 16, 4) and ch == ["R", "G", "B", "A"]
+    progress = [line for line in p.stdout.splitlines() if line.startswith("delight:")]
+    assert len(progress) >= 5 and any("bake" in line for line in progress) and "wrote" in progress[-1]
+    assert digest(blend) == before and not os.path.exists(blend + "1")
+
+
+def test_blender_P_script_path_takes_the_same_options(tmp_path):
+    blend, s = save_scene(tmp_path)
+    before = digest(blend)
+    out = tmp_path / "out"
+    p = run_script(blend, *FAST, "--cameras", s.cameras[0].name, s.cameras[2].name, "--lambda", "2.5",
+                   "--out", out)
+    assert p.returncode == 0, p.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert [c["name"] for c in report["cameras"]] == [s.cameras[0].name, s.cameras[2].name]
+    assert report["parameters"]["lambda"] == 2.5
+    assert digest(blend) == before
+
+
+def test_default_out_is_beside_the_blend(tmp_path):
+    blend, _ = save_scene(tmp_path)
+    p = run_cli(blend, *FAST)
+    assert p.returncode == 0, p.stderr
+    assert (tmp_path / "Target_albedo.exr").is_file() and (tmp_path / "views").is_dir()
+
+
+def test_save_writes_the_material_into_the_blend(tmp_path):
+    blend, _ = save_scene(tmp_path)
+    before = digest(blend)
+    p = run_cli(blend, *FAST, "--out", tmp_path / "out", "--save")
+    assert p.returncode == 0, p.stderr
+    assert digest(blend) != before
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    obj = bpy.data.objects["Target"]
+    mat = obj.material_slots[0].material
+    src = mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].links[0].from_node
+    assert src.name == "Delight Albedo"
+    img = bpy.data.images["Target_albedo"]
+    assert img.packed_file is not None and tuple(img.size) == (16, 16)
+
+
+def test_existing_output_needs_overwrite(tmp_path):
+    blend, _ = save_scene(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "Target_albedo.exr").write_bytes(b"precious")
+    before = digest(blend)
+    p = run_cli(blend, *FAST, "--out", out)
+    assert p.returncode == 1
+    errors = error_lines(p)
+    assert len(errors) == 1 and "Target_albedo.exr" in errors[0] and "already exists" in errors[0]
+    assert files_under(out) == ["Target_albedo.exr"] and (out / "Target_albedo.exr").read_bytes() == b"precious"
+    assert digest(blend) == before
+    p = run_cli(blend, *FAST, "--out", out, "--overwrite")
+    assert p.returncode == 0, p.stderr
+    assert read_exr(out / "Target_albedo.exr")[0].shape == (16, 16, 4)
+
+
+def test_hostile_camera_names_stay_inside_out(tmp_path):
+    s = build_scene(str(tmp_path))
+    s.cameras[0].name, s.cameras[1].name = "../../x", "a/b"
+    blend = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    out = tmp_path / "sub" / "out"
+    p = run_cli(blend, *FAST, "--out", out)
+    assert p.returncode == 0, p.stderr
+    views = [f for f in files_under(out) if f.startswith("views/")]
+    assert len(views) == 4
+    outside = [f for f in files_under(tmp_path) if not f.startswith("sub")]
+    assert sorted(outside) == ["scene.blend"]
+    assert not (tmp_path.parent / "x.exr").exists() and not (tmp_path / "x.exr").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--object", "Nope"], "Nope"),
+    (["--cameras", "nocam"], "nocam"),
+    (["--images", "/no/such/folder"], "/no/such/folder"),
+    (["--texture-size", "3"], "texture size"),
+])
+def test_bad_input_exits_nonzero_with_one_line_and_writes_nothing(tmp_path, args, message):
+    blend, _ = save_scene(tmp_path)
+    before = digest(blend)
+    out = tmp_path / "out"
+    p = run_cli(blend, *FAST, *args, "--out", out)
+    assert p.returncode == 1, p.stdout + p.stderr
+    errors = error_lines(p)
+    assert len(errors) == 1 and message in errors[0], p.stderr
+    assert "Traceback" not in p.stderr
+    assert not out.exists() and digest(blend) == before
+
+
+def test_missing_blend_and_usage_errors(tmp_path):
+    p = run_cli(tmp_path / "missing.blend")
+    assert p.returncode == 1 and len(error_lines(p)) == 1 and "missing.blend" in p.stderr
+    p = run_cli(tmp_path / "x.blend", "--method", "magic")
+    assert p.returncode == 2 and "invalid choice" in p.stderr
+    assert files_under(tmp_path) == []
+
+
+def test_a_camera_without_photo_fails_cleanly(tmp_path):
+    blend, s = save_scene(tmp_path, photo=None)
+    before = digest(blend)
+    p = run_cli(blend, *FAST, "--out", tmp_path / "out")
+    assert p.returncode == 1 and len(error_lines(p)) == 1 and "Traceback" not in p.stderr
+    assert not (tmp_path / "out").exists() and digest(blend) == before
