@@ -1,0 +1,104 @@
+"""Build the extension zip, install it into the bpy module under a temporary
+BLENDER_USER_RESOURCES, enable it and run the operator, in a subprocess."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from conftest import ROOT, build_scene  # noqa: E402
+
+pytestmark = [pytest.mark.bpy, pytest.mark.slow]
+
+sys.path.insert(0, os.path.join(ROOT, "tools"))
+import build_extension  # noqa: E402
+
+# Runs in a fresh interpreter. scipy and OpenEXR must come from the wheels the
+# extension installed, not from this venv: a finder refuses them elsewhere.
+CHILD = r'''
+import importlib.machinery, json, os, sys
+
+SHIPPED = ("scipy", "OpenEXR", "Imath")
+
+class OnlyFromExtensions:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] not in SHIPPED or "." in name:
+            return None
+        where = [p for p in sys.path if os.sep + "extensions" + os.sep in p]
+        spec = importlib.machinery.PathFinder.find_spec(name, where)
+        if spec is None:
+            raise ImportError(f"{name} is not installed by the extension")
+        return spec
+
+sys.meta_path.insert(0, OnlyFromExtensions())
+
+import bpy
+zip_path, blend, out = sys.argv[1:4]
+assert bpy.utils.resource_path("USER") == os.environ["BLENDER_USER_RESOURCES"]
+res = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+assert res == {"FINISHED"}, res
+bpy.ops.wm.open_mainfile(filepath=blend)
+res = bpy.ops.delight.run(method="texture", texture_size=16, max_iter=2, out_dir=out)
+import scipy, OpenEXR
+mod = sys.modules["bl_ext.user_default.delight"]
+print("RESULT " + json.dumps({
+    "run": sorted(res), "addon": mod.__file__, "scipy": scipy.__file__, "openexr": OpenEXR.__file__,
+    "core": sys.modules["bl_ext.user_default.delight.core.solver"].__file__,
+    "files": sorted(os.listdir(out)),
+    "base_color": bpy.data.objects["Target"].material_slots[0].material.node_tree.nodes["Principled BSDF"]
+        .inputs["Base Color"].links[0].from_node.name,
+}))
+'''
+
+
+@pytest.fixture(scope="module")
+def extension_zip(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    # Downloaded wheels are cached in the git-ignored build folder.
+    zips = build_extension.build(["linux-x64"], str(out), os.path.join(ROOT, "build", "wheels"))
+    assert len(zips) == 1
+    return zips[0]
+
+
+def test_zip_holds_the_add_on_the_real_core_and_the_wheels(extension_zip):
+    with zipfile.ZipFile(extension_zip) as z:
+        names = z.namelist()
+        manifest = z.read("blender_manifest.toml").decode()
+        infos = {i.filename: i for i in z.infolist()}
+    assert {"__init__.py", "operator.py", "pipeline.py", "core/__init__.py", "core/solver.py"} <= set(names)
+    # core is real files, not a symlink entry (mode bits 0o120000).
+    assert (infos["core/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
+    wheels = [n for n in names if n.startswith("wheels/")]
+    assert any(w.startswith("wheels/scipy-") and "cp311" in w and "x86_64" in w for w in wheels)
+    assert any(w.startswith("wheels/openexr-") and "cp311" in w for w in wheels)
+    assert 'id = "delight"' in manifest and 'platforms = ["linux-x64"]' in manifest
+    for w in wheels:
+        assert f'"./{w}"' in manifest
+
+
+def test_installed_extension_runs_the_operator(extension_zip, tmp_path):
+    build_scene(str(tmp_path))
+    blend = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    user = tmp_path / "user"
+    user.mkdir()
+    out = tmp_path / "out"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env.update(BLENDER_USER_RESOURCES=str(user), OPENBLAS_NUM_THREADS="1")
+    p = subprocess.run([sys.executable, "-c", CHILD, extension_zip, blend, str(out)], cwd=str(tmp_path),
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    line = next(x for x in p.stdout.splitlines() if x.startswith("RESULT "))
+    r = json.loads(line[len("RESULT "):])
+    assert r["run"] == ["FINISHED"]
+    ext = str(user / "extensions")
+    for key in ("addon", "scipy", "openexr", "core"):
+        assert r[key].startswith(ext), (key, r[key])
+    assert {"Target_albedo.exr", "lighting.json", "report.json", "views"} <= set(r["files"])
+    assert r["base_color"] == "Delight Albedo"
