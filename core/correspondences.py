@@ -1,0 +1,156 @@
+"""Pixels of different views that see the same surface point (image-domain consistency).
+
+Each view's baked hit positions are reprojected into its nearest other views.
+A pair (pixel p of view a, sub-pixel position q in view b) is kept only if the
+point is really visible at q in view b:
+
+* the 4 pixels around q (bilinear support) all lie in b's mask, so the pair
+  never straddles b's silhouette;
+* the point's depth in b agrees, within a relative tolerance, with b's own
+  depth at q (bilinear), so occluded points are rejected;
+* the normals of the two views agree there, and the surface faces camera b.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .problem import Correspondences
+
+__all__ = ["find_correspondences", "neighbour_views"]
+
+
+def _view_dirs(cameras, positions, masks):
+    """Unit directions from the centroid of each view's hits towards every camera."""
+    centres = np.array([c.center for c in cameras])
+    out = []
+    for p, m in zip(positions, masks):
+        pts = np.asarray(p)[m]
+        g = pts.mean(axis=0) if len(pts) else np.zeros(3)
+        d = centres - g
+        out.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30))
+    return out
+
+
+def neighbour_views(cameras, positions, masks, neighbours):
+    """For each view, the indices of the ``neighbours`` views closest in viewing direction.
+
+    The direction of a view is taken from the centroid of what it sees
+    towards its camera centre; closeness is the angle between directions.
+    """
+    m = len(cameras)
+    dirs = _view_dirs(cameras, positions, masks)
+    out = []
+    for a in range(m):
+        cos = dirs[a] @ dirs[a][a]
+        cos[a] = -np.inf
+        order = np.argsort(-cos, kind="stable")
+        out.append([int(b) for b in order[:max(0, min(neighbours, m - 1))]])
+    return out
+
+
+def _bilinear_setup(xy, w, h):
+    """Corner indices and weights of bilinear lookups at ``xy`` (all inside the grid)."""
+    x, y = xy[:, 0], xy[:, 1]
+    x0 = np.clip(np.floor(x).astype(np.intp), 0, max(w - 2, 0))
+    y0 = np.clip(np.floor(y).astype(np.intp), 0, max(h - 2, 0))
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    idx = np.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], axis=1)
+    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
+    return idx, wts
+
+
+def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000, depth_tol=0.01,
+                         neighbours=4, seed=0, min_normal_cos=0.8) -> Correspondences:
+    """Pairs of pixels of different views that see the same surface point.
+
+    Parameters
+    ----------
+    cameras : list of core.camera.Camera
+    positions : list of (H, W, 3) arrays
+        World hit point of every pixel (anything outside the mask).
+    masks : list of (H, W) bool arrays
+    normals : list of (H, W, 3) arrays
+        Unit world normals inside the masks.
+    max_pairs : int
+        At most this many pairs; pixels are subsampled at random (seeded).
+    depth_tol : float
+        Relative depth agreement: ``|z - z_b| <= depth_tol * z``.
+    neighbours : int
+        Each pixel is paired with at most this many other views, those with
+        the closest viewing directions.
+    seed : int
+    min_normal_cos : float
+        The two views' normals at the pair must agree to this cosine.
+
+    Returns
+    -------
+    Correspondences
+        Pairs sorted by (view_a, pixel_a); ``xy_b`` sub-pixel, in view b's
+        pixel coordinates (centre of pixel (r, c) at (c, r)).
+    """
+    m = len(cameras)
+    if not (len(positions) == len(masks) == len(normals) == m):
+        raise ValueError(f"find_correspondences: {m} cameras, {len(positions)} positions, {len(masks)} masks, "
+                         f"{len(normals)} normals")
+    masks = [np.asarray(mk, dtype=bool) for mk in masks]
+    empty = Correspondences(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+    if m < 2 or max_pairs <= 0 or neighbours <= 0:
+        return empty
+    rng = np.random.default_rng(seed)
+    nbrs = neighbour_views(cameras, positions, masks, neighbours)
+    candidates = sum(int(mk.sum()) * len(nb) for mk, nb in zip(masks, nbrs))
+    # Subsample before testing so memory stays bounded, with a margin for the
+    # pairs the tests reject (typically half); the surplus is trimmed at the end.
+    keep_frac = min(1.0, 3.0 * max_pairs / max(candidates, 1))
+
+    # Each view's own depth map (camera-space z of its hits) and flat normals.
+    depth, flat_n, flat_m = [], [], []
+    for cam, pos, mk, nrm in zip(cameras, positions, masks, normals):
+        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
+        z = np.full(mk.size, np.nan)
+        sel = mk.ravel()
+        z[sel] = pos[sel] @ cam.R[2] + cam.t[2]
+        depth.append(z)
+        flat_n.append(np.asarray(nrm, dtype=np.float64).reshape(-1, 3))
+        flat_m.append(sel)
+
+    out = {"view_a": [], "pixel_a": [], "view_b": [], "xy_b": []}
+    for a in range(m):
+        pix = np.flatnonzero(flat_m[a])
+        if keep_frac < 1.0:
+            pix = np.sort(rng.choice(pix, size=int(round(len(pix) * keep_frac)), replace=False))
+        if pix.size == 0:
+            continue
+        p = np.asarray(positions[a], dtype=np.float64).reshape(-1, 3)[pix]
+        n_a = flat_n[a][pix]
+        for b in nbrs[a]:
+            cam = cameras[b]
+            w, h = cam.width, cam.height
+            xy, z = cam.project(p)
+            ok = (z > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] <= h - 1)
+            ok &= np.einsum("ij,ij->i", n_a, cam.center - p) > 0  # faces camera b
+            if not ok.any():
+                continue
+            sel = np.flatnonzero(ok)
+            idx, wts = _bilinear_setup(xy[sel], w, h)
+            inside = flat_m[b][idx].all(axis=1)
+            sel, idx, wts = sel[inside], idx[inside], wts[inside]
+            zb = np.einsum("ij,ij->i", depth[b][idx], wts)
+            vis = np.abs(z[sel] - zb) <= depth_tol * z[sel]
+            nb = np.einsum("ijk,ij->ik", flat_n[b][idx], wts)
+            nb /= np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-30)
+            vis &= np.einsum("ij,ij->i", nb, n_a[sel]) >= min_normal_cos
+            sel = sel[vis]
+            out["view_a"].append(np.full(sel.size, a, dtype=np.int32))
+            out["pixel_a"].append(pix[sel].astype(np.int64))
+            out["view_b"].append(np.full(sel.size, b, dtype=np.int32))
+            out["xy_b"].append(xy[sel])
+    if not out["view_a"]:
+        return empty
+    va, pa, vb, xyb = (np.concatenate(out[k]) for k in ("view_a", "pixel_a", "view_b", "xy_b"))
+    if va.size > max_pairs:
+        keep = np.sort(rng.choice(va.size, size=max_pairs, replace=False))
+        va, pa, vb, xyb = va[keep], pa[keep], vb[keep], xyb[keep]
+    order = np.lexsort((vb, pa, va))
+    return Correspondences(view_a=va[order], pixel_a=pa[order], view_b=vb[order], xy_b=xyb[order])
