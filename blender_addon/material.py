@@ -15,7 +15,7 @@ import bpy
 
 from .errors import DelightError
 
-__all__ = ["IMAGE_NODE", "UV_NODE", "FRAME_LABEL", "wire_albedo", "target_materials"]
+__all__ = ["IMAGE_NODE", "UV_NODE", "FRAME_LABEL", "wire_albedo", "target_materials", "check_editable"]
 
 IMAGE_NODE = "Delight Albedo"
 UV_NODE = "Delight UV"
@@ -32,7 +32,9 @@ def target_materials(obj) -> list:
     return out
 
 
-def _check_editable(obj, mats):
+def check_editable(obj, mats=None):
+    """Raise :class:`DelightError` if the object or its materials cannot be edited (linked data)."""
+    mats = target_materials(obj) if mats is None else mats
     if obj.library is not None or obj.data.library is not None:
         raise DelightError(f"object {obj.name!r} is linked from a library and cannot get a material")
     for m in mats:
@@ -168,7 +170,7 @@ def wire_albedo(obj, image, uv_map: str | None = None) -> list:
         is changed then.
     """
     mats = target_materials(obj)
-    _check_editable(obj, mats)
+    check_editable(obj, mats)
     if not mats:
         mat = bpy.data.materials.new(f"{obj.name}_material")
         if not obj.material_slots:

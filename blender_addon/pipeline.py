@@ -183,6 +183,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     import bpy
 
     from . import bake as _bake
+    from . import material as _material
     from . import scene as _scene
     from . import write as _write
 
@@ -198,7 +199,8 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     inputs = _scene.gather(scene, object_name=options.object_name, camera_names=options.camera_names,
                            images_dir=options.images_dir, working_res_mp=options.working_res_mp,
                            selected_only=options.selected_only)
-    # Fail before the long part if the outputs are in the way.
+    # Fail before the long part if the outputs or the material are in the way.
+    _material.check_editable(bpy.data.objects[inputs.object_name])
     _write.check_outputs(_write.output_paths(out_dir, inputs.object_name, [v.name for v in inputs.views]),
                          options.overwrite)
     times["gather"] = time.perf_counter() - t
@@ -390,6 +392,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:
         raise DelightError(f"the object {inputs.object_name!r} is gone from the scene")
+    _material.check_editable(obj)   # before any file is written
     names = [v.name for v in inputs.views]
     paths = _write.output_paths(prepared.out_dir, inputs.object_name, names)
     stage(0.0, f"files in {paths.out_dir}")

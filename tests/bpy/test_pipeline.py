@@ -275,6 +275,31 @@ def test_texture_method_delights(tmp_path):
     assert np.nanmax(v0[..., :3]) <= albedo[..., :3].max() + 1e-5
 
 
+def test_image_method_fuses_the_solved_views(tmp_path):
+    pytest.importorskip("blender_addon.core.correspondences")
+    s = build_scene(str(tmp_path))
+    rep = pipeline.run(s.scene, options(tmp_path / "out", method="image", max_iter=2))
+    assert rep.iterations >= 1
+    albedo, _ = read_exr(tmp_path / "out" / "Target_albedo.exr")
+    assert np.isfinite(albedo).all() and albedo[..., 3].any()
+    light = json.loads((tmp_path / "out" / "lighting.json").read_text())
+    assert all(len(v["sh"]["R"]) == 9 for v in light["views"])
+
+
+def test_linked_material_is_refused_before_anything_is_written(tmp_path):
+    lib = str(tmp_path / "lib.blend")
+    bpy.data.libraries.write(lib, {bpy.data.materials.new("Shared")})
+    s = build_scene(str(tmp_path))
+    with bpy.data.libraries.load(lib, link=True) as (src, dst):
+        dst.materials = ["Shared"]
+    s.obj.data.materials.append(dst.materials[0])
+    assert s.obj.material_slots[0].material.library is not None
+    before = scene_state()
+    with pytest.raises(DelightError, match="linked from a library"):
+        pipeline.run(s.scene, options(tmp_path / "out"))
+    assert scene_state() == before and not (tmp_path / "out").exists()
+
+
 def test_sample_texture_reads_texel_centres_and_interpolates():
     n = 8
     tex = np.zeros((n, n, 1), np.float32)
