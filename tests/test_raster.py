@@ -1,0 +1,81 @@
+"""core.raster.raycast against analytic ray casting (the Cycles check is in tests/bpy)."""
+import numpy as np
+
+from core.camera import Camera
+from core.raster import raycast
+
+
+def camera(R=np.eye(3), eye=(0.0, 0.0, 0.0), w=40, h=30, f=25.0, skew=0.0):
+    R = np.asarray(R, float)
+    return Camera(K=[[f, skew, (w - 1) / 2 + 0.3], [0, f * 1.1, (h - 1) / 2 - 0.2], [0, 0, 1]], R=R,
+                  t=-R @ np.asarray(eye, float), width=w, height=h)
+
+
+def grid_quads(n, size, z):
+    """An n x n grid of quads (2 triangles each) on the plane z, centred at the origin."""
+    xs = np.linspace(-size, size, n + 1)
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            a, b = (xs[i], xs[j], z), (xs[i + 1], xs[j], z)
+            c, d = (xs[i + 1], xs[j + 1], z), (xs[i], xs[j + 1], z)
+            tris += [(a, b, c), (a, c, d)]
+    return np.array(tris)
+
+
+def test_ground_plane_reaching_behind_the_camera():
+    # Camera 1 m above a large ground grid, tilted 15 degrees below the horizon: triangles
+    # cross the camera plane, so their projections must be clipped, not wrapped.
+    t = np.radians(75.0)  # angle from straight down
+    fwd = np.array([0.0, np.sin(t), -np.cos(t)])
+    right = np.array([1.0, 0.0, 0.0])
+    down = np.cross(fwd, right)
+    R = np.stack([right, down, fwd])
+    eye = np.array([0.0, 0.0, 1.0])
+    cam = camera(R, eye)
+    # Shifted so that the cell under the camera, which crosses the camera
+    # plane, is also the one seen at the bottom of the frame.
+    tris = grid_quads(6, 50.0, 0.0) + np.array([0.0, 5.0, 0.0])
+    hits = raycast(cam, tris)
+    d = cam.ray_directions()
+    t_plane = -eye[2] / d[:, :, 2]
+    with np.errstate(invalid="ignore"):
+        ground = eye[:2] + d[:, :, :2] * t_plane[:, :, None] - [0.0, 5.0]
+        on_grid = np.all(np.abs(ground) <= 50.0, axis=2)
+    expect = (t_plane > 0) & on_grid
+    np.testing.assert_array_equal(hits.mask, expect)
+    # The horizon is in the frame: sky rows above, ground rows below.
+    assert (t_plane <= 0).all(axis=1).any() and (t_plane > 0).all(axis=1).any()
+    p = hits.interpolate(tris)
+    np.testing.assert_allclose(p[expect], (eye + d * t_plane[:, :, None])[expect], atol=1e-7)
+    depth = (p[expect] - eye) @ fwd
+    np.testing.assert_allclose(hits.depth[expect], depth, rtol=1e-9)
+    np.testing.assert_allclose(hits.bary[expect].sum(axis=1), 1.0)
+
+
+def test_nearest_hit_wins_and_shared_edges_leave_no_holes():
+    cam = camera(skew=0.7)
+    near = grid_quads(7, 1.0, 4.0)   # a fine grid (many shared edges), nearer
+    far = grid_quads(2, 10.0, 6.0)   # a plane behind it, filling the frame
+    tris = np.concatenate([far, near])
+    hits = raycast(cam, tris, batch=500)  # tiny batches: the depth test across batches
+    d = cam.ray_directions()
+    p_near = d * (4.0 / d[:, :, 2:3])
+    in_near = np.all(np.abs(p_near[:, :, :2]) <= 1.0, axis=2)
+    strictly = np.all(np.abs(p_near[:, :, :2]) < 1.0 - 1e-9, axis=2)
+    assert strictly.sum() > 100 and (~in_near).sum() > 100
+    assert np.all(hits.tri[strictly] >= len(far))  # the near grid, no holes on its edges
+    assert np.all((hits.tri[~in_near] >= 0) & (hits.tri[~in_near] < len(far)))
+    np.testing.assert_allclose(hits.depth[strictly], 4.0, rtol=1e-12)
+    assert np.isinf(hits.depth[~hits.mask]).all() and (hits.tri[~hits.mask] == -1).all()
+
+
+def test_back_faces_are_hit_and_behind_is_not():
+    cam = camera()
+    tri = np.array([[[-1.0, -1.0, 3.0], [-1.0, 1.0, 3.0], [1.0, 0.0, 3.0]]])  # either winding
+    behind = tri * np.array([1.0, 1.0, -1.0])
+    for t in (tri, tri[:, ::-1], np.concatenate([behind, tri])):
+        hits = raycast(cam, t)
+        assert hits.mask.sum() > 50
+        assert set(np.unique(hits.tri[hits.mask])) == {len(t) - 1}
+    assert not raycast(cam, behind).mask.any()
