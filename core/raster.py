@@ -6,8 +6,9 @@ the camera centre through every pixel centre and keeping the nearest hit
 it works triangle by triangle like a z-buffer rasteriser:
 
 1. each triangle is moved to camera space and clipped to the half space in
-   front of the camera, and the pixel centres inside its projected bounding
-   box become candidates;
+   front of the camera; on each pixel row of its projection, the pixel
+   centres within the triangle's exact span (its bounding box if it crosses
+   the camera plane) become candidates;
 2. each candidate is tested exactly against the triangle with signed volumes
    (the ray from the origin through the pixel hits the triangle iff the three
    triple products ``d . (Vi x Vj)`` share the sign of ``d . N``);
