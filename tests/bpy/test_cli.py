@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
@@ -171,3 +172,32 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
     p = run_cli(blend, *FAST, "--out", tmp_path / "out")
     assert p.returncode == 1 and len(error_lines(p)) == 1 and "Traceback" not in p.stderr
     assert not (tmp_path / "out").exists() and digest(blend) == before
+
+
+@pytest.mark.slow
+def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
+    """A small Cycles render of blend_fixtures' lambert_sky, both ways of running, the paper's RMSE protocol."""
+    sys.path.insert(0, os.path.join(ROOT, "blend_fixtures"))
+    try:
+        import make_fixtures
+    finally:
+        sys.path.remove(os.path.join(ROOT, "blend_fixtures"))
+    from blender_addon.core.metrics import scaled_rmse
+
+    make_fixtures.generate("lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8,
+                           texture_size=64)
+    blend = tmp_path / "lambert_sky" / "scene.blend"
+    gt = read_exr(tmp_path / "lambert_sky" / "albedo_gt.exr")[0]
+    common = ["--object", "Object", "--texture-size", "64"]
+    p = run_cli(blend, *common, "--method", "project", "--out", tmp_path / "project")
+    assert p.returncode == 0, p.stderr
+    p = run_script(blend, *common, "--method", "texture", "--max-iter", "10", "--out", tmp_path / "texture")
+    assert p.returncode == 0, p.stderr
+    rmse = {}
+    for m in ("project", "texture"):
+        est = read_exr(tmp_path / m / "Object_albedo.exr")[0]
+        seen = (est[..., 3] > 0) & (gt[..., 3] > 0)
+        assert seen.sum() > 0.5 * (gt[..., 3] > 0).sum()
+        rmse[m] = float(np.mean(scaled_rmse(est[..., :3], gt[..., :3], seen)))
+    # Measured: project 0.223, texture 0.142 (10 iterations).
+    assert rmse["texture"] < 0.8 * rmse["project"], rmse
