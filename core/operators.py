@@ -58,11 +58,17 @@ class Discretization:
     n_tv: int                      # rows [0, n_tv) are TV, the rest correspondences
     base: np.ndarray               # (E,) float32 base row weights
     rho0: np.ndarray               # (n, C) float32 starting reflectance
+    obs_view: np.ndarray | None = None      # (O,) intp view of each observation
     texel_index: np.ndarray | None = None   # texture domain: flat texel of each unknown
 
     @property
     def n_views(self) -> int:
         return len(self.pixel_offsets) - 1
+
+    def __post_init__(self):
+        if self.obs_view is None:
+            view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
+            self.obs_view = view_of_pixel[self.obs_pixel]
 
     def row_scale(self, lam: float, mu: float) -> np.ndarray:
         s = self.base.copy()

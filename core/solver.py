@@ -87,6 +87,8 @@ class SolverParams:
     continuation_delta: float = 1.0
     normalise_correspondences: bool = True
     threads: int = 2
+    varpro: bool = True
+    precision: str = "float32"
 
     def check(self):
         if self.domain not in ("texture", "image"):
@@ -133,12 +135,12 @@ class Result:
     info: dict = field(default_factory=dict)
 
 
-def _shading(d: Discretization, sigma: np.ndarray) -> np.ndarray:
+def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarray:
     """``sigma_v . nu_p`` for every pixel p of every view v; sigma is (m, 9)."""
-    out = np.empty(d.nu.shape[0], dtype=np.float32)
+    out = np.empty(d.nu.shape[0], dtype=dtype)
     for v in range(d.n_views):
         a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        out[a:b] = d.nu[a:b] @ sigma[v].astype(np.float32)
+        out[a:b] = d.nu[a:b] @ sigma[v].astype(dtype)
     return out
 
 
@@ -186,21 +188,23 @@ class _Channel:
 
     def __init__(self, d: Discretization, c: int, params: SolverParams):
         self.d = d
+        self.ft = np.dtype(params.precision).type
         self.values = np.ascontiguousarray(d.values[:, c])
-        self.rho = np.ascontiguousarray(d.rho0[:, c]).astype(np.float32)
+        self.rho = np.ascontiguousarray(d.rho0[:, c]).astype(self.ft)
         self.sigma = np.tile(DIFFUSE, (d.n_views, 1))
         self.delta = params.delta
         self.cg_iter = params.cg_iter
+        self.varpro = params.varpro and d.domain == "texture"
         self.mu = params.mu
         self.lam = params.lam
         self._set_lambda(params.lam)
-        self.shade = _shading(d, self.sigma)
+        self.shade = _shading(d, self.sigma, self.ft)
         self.e = self.energy()
 
     def _set_lambda(self, lam):
         self.lam = lam
         self.s = self.d.row_scale(lam, self.mu).astype(np.float64)
-        self.s32 = self.s.astype(np.float32)
+        self.s_ft = self.s.astype(self.ft)
 
     def set_stage(self, lam, delta):
         self._set_lambda(lam)
@@ -218,19 +222,19 @@ class _Channel:
     def rho_step(self):
         d = self.d
         a = self.shade[d.obs_pixel]
-        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(np.float32)
-        diag = np.bincount(d.obs_unknown, weights=w * a * a, minlength=d.n_unknowns).astype(np.float32)
+        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(self.ft)
+        diag = np.bincount(d.obs_unknown, weights=w * a * a, minlength=d.n_unknowns).astype(self.ft)
         rhs = np.bincount(d.obs_unknown, weights=w * a * self.values[d.obs_pixel],
-                          minlength=d.n_unknowns).astype(np.float32)
+                          minlength=d.n_unknowns).astype(self.ft)
         if d.B.shape[0]:
-            sw = self.s32 * mm_weight(d.B @ self.rho, self.delta).astype(np.float32)
+            sw = self.s_ft * mm_weight(d.B @ self.rho, self.delta).astype(self.ft)
             B, BT = d.B, d.BT
             matvec = lambda x: diag * x + BT @ (sw * (B @ x))  # noqa: E731
             jacobi = diag + d.B2T @ sw
         else:
             matvec = lambda x: diag * x  # noqa: E731
             jacobi = diag
-        dinv = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(np.float32)
+        dinv = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
         rho = _pcg(matvec, rhs, self.rho.copy(), dinv, self.cg_iter)
         e = self.energy(rho=rho)
         if e <= self.e:
@@ -239,7 +243,7 @@ class _Channel:
     def sigma_step(self):
         d = self.d
         rho_o = self.rho[d.obs_unknown]
-        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(np.float32)
+        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(self.ft)
         npix = d.nu.shape[0]
         g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
         h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
@@ -255,13 +259,15 @@ class _Channel:
                 sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
             else:
                 sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
-        shade = _shading(d, sigma)
+        shade = _shading(d, sigma, self.ft)
         e = self.energy(shade=shade)
         if e <= self.e:
             self.sigma, self.shade, self.e = sigma, shade, e
 
     def step(self):
         self.rho_step()
+        if self.varpro:
+            _varpro_step(self)
         self.sigma_step()
         return self.e
 
@@ -377,3 +383,62 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
         seen[d.texel_index] = True
         seen = seen.reshape(size, size)
     return views, texture, seen
+
+
+def _varpro_step(ch: "_Channel"):
+    """Gauss-Newton step on sigma with rho eliminated through its data-term response.
+
+    Plain alternation crawls along the valley where rho and sigma trade off
+    (100 iterations left RMSE 0.11 on a noiseless, well-posed sphere). Here
+    each unknown's reflectance follows sigma as the data term dictates,
+    ``rho_u(sigma) = sum w a I / sum w a^2``, so the step moves both together
+    (variable projection). A backtracking search on the true energy keeps the
+    MM guarantee.
+    """
+    d = ch.d
+    m = d.n_views
+    nv = 9 * m
+    u = d.obs_unknown
+    a = ch.shade[d.obs_pixel].astype(np.float64)
+    vals = ch.values[d.obs_pixel].astype(np.float64)
+    rho_o = ch.rho[u].astype(np.float64)
+    r = rho_o * a - vals
+    w = d.obs_weight * mm_weight(r, ch.delta)
+    D = np.bincount(u, weights=w * a * a, minlength=d.n_unknowns)
+    D = np.maximum(D, 1e-30)
+    nu_o = d.nu[d.obs_pixel]
+    flat = u * nv + 9 * d.obs_view
+    c_g = w * (vals - 2 * rho_o * a) / D[u]
+    c_q = w * rho_o * a
+    G = np.zeros(d.n_unknowns * nv)
+    Q = np.zeros(d.n_unknowns * nv)
+    for j in range(9):
+        G += np.bincount(flat + j, weights=c_g * nu_o[:, j], minlength=G.size)
+        Q += np.bincount(flat + j, weights=c_q * nu_o[:, j], minlength=Q.size)
+    G = G.reshape(d.n_unknowns, nv)
+    Q = Q.reshape(d.n_unknowns, nv)
+    npix = d.nu.shape[0]
+    p_w = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
+    p_r = np.bincount(d.obs_pixel, weights=w * r * rho_o, minlength=npix)
+    JtJ = G.T @ (D[:, None] * G) + Q.T @ G + G.T @ Q
+    Jtr = G.T @ np.bincount(u, weights=w * r * a, minlength=d.n_unknowns)
+    for v in range(m):
+        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        sl = slice(9 * v, 9 * v + 9)
+        JtJ[sl, sl] += unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        Jtr[sl] += p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+    free = np.ones(nv, dtype=bool)
+    free[3] = False  # the pinned constant term of view 0
+    step = np.zeros(nv)
+    step[free] = np.linalg.lstsq(JtJ[np.ix_(free, free)], -Jtr[free], rcond=1e-10)[0]
+    drho = (G @ step).astype(ch.ft)
+    dsig = step.reshape(m, 9)
+    for t in (1.0, 0.5, 0.25):
+        sigma = ch.sigma + t * dsig
+        shade = _shading(d, sigma, ch.ft)
+        rho = ch.rho + t * drho
+        e = ch.energy(rho=rho, shade=shade)
+        if e < ch.e:
+            ch.rho, ch.sigma, ch.shade, ch.e = rho, sigma, shade, e
+            return True
+    return False

@@ -40,13 +40,16 @@ def _look_at(eye, target=(0, 0, 0), up=(0, 0, 1)):
     return R, -R @ eye
 
 
-def _albedo(points, cells, colors):
-    """Piecewise-constant albedo: the colour of the nearest cell centre on the sphere."""
+def _albedo(points, cells, colors, smooth=False):
+    """Albedo on the sphere: the colour of the nearest cell centre, or a smooth blend of them."""
     flat = points.reshape(-1, 3)
     out = np.full((flat.shape[0], colors.shape[1]), np.nan)
     ok = np.all(np.isfinite(flat), axis=1)
-    best = np.argmax(flat[ok] @ cells.T, axis=1)
-    out[ok] = colors[best]
+    if smooth:
+        w = np.exp(4 * (flat[ok] @ cells.T))
+        out[ok] = (w @ colors) / w.sum(axis=1, keepdims=True)
+    else:
+        out[ok] = colors[np.argmax(flat[ok] @ cells.T, axis=1)]
     return out.reshape(points.shape[:-1] + (colors.shape[1],))
 
 
@@ -79,11 +82,13 @@ def _lighting(rng, n_views, channels, varying):
 
 
 def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_cells=12,
-                 varying_light=False, noise=0.0, seed=0, distance=3.5) -> SyntheticScene:
+                 varying_light=False, noise=0.0, seed=0, distance=3.5,
+                 smooth_albedo=False) -> SyntheticScene:
     """A unit sphere with a piecewise-constant albedo, seen by ``n_views`` cameras on two rings.
 
     The albedo is defined on the sphere (nearest of ``n_cells`` random cell
-    centres), so the ground truth is exact per pixel and per texel.
+    centres, or a smooth blend of their colours), so the ground truth is exact
+    per pixel and per texel.
     """
     rng = np.random.default_rng(seed)
     cells = rng.standard_normal((n_cells, 3))
@@ -107,7 +112,7 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
         p = eye + tt[..., None] * d
         p[~mask] = np.nan
         n = np.where(mask[..., None], p, 0)
-        alb = _albedo(p, cells, colors)
+        alb = _albedo(p, cells, colors, smooth_albedo)
         shade = np.einsum("hwk,ck->hwc", sh_basis(n, np.float64), sigma[v])
         img = np.where(mask[..., None], alb * shade, 0)
         if noise:
@@ -134,4 +139,4 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
     layout = TextureLayout(tex_pos, seam)
     problem = Problem(images, masks, normals, uv=uvs, texture=layout, view_weight=weights,
                       names=[f"cam{v:02d}" for v in range(n_views)])
-    return SyntheticScene(problem, cams, gts, _albedo(tex_pos, cells, colors).astype(np.float32), sigma, poss)
+    return SyntheticScene(problem, cams, gts, _albedo(tex_pos, cells, colors, smooth_albedo).astype(np.float32), sigma, poss)

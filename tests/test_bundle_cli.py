@@ -346,7 +346,6 @@ def test_bad_input_exits_with_one_line(tmp_path):
     assert r.returncode == 2 and "--lambda" in r.stderr
 
 
-@pytest.mark.xfail(raises=NotImplementedError, strict=False, reason="solver not implemented yet")
 @pytest.mark.parametrize("domain", ["texture", "image"])
 def test_solve_end_to_end(tmp_path, capsys, domain):
     p = make_problem(names=["left", "../../x", "left"])

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+
+from core.problem import Correspondences, Problem
+
+
+def _views(m=2, h=6, w=7):
+    img = np.full((h, w, 3), 0.5, np.float32)
+    mask = np.ones((h, w), bool)
+    nrm = np.zeros((h, w, 3), np.float32)
+    nrm[..., 2] = 1
+    return [img.copy() for _ in range(m)], [mask.copy() for _ in range(m)], [nrm.copy() for _ in range(m)]
+
+
+def test_valid_problem():
+    p = Problem(*_views())
+    assert p.n_views == 2 and p.channels == 3
+
+
+def _expect(match, **changes):
+    imgs, masks, nrms = _views()
+    kw = dict(images=imgs, masks=masks, normals=nrms)
+    for k, f in changes.items():
+        f(kw)
+    with pytest.raises(ValueError, match=match):
+        Problem(**kw)
+
+
+def test_nan_pixels():
+    _expect("view 1.*NaN", images=lambda kw: kw["images"][1].__setitem__((2, 3, 0), np.nan))
+
+
+def test_nan_outside_the_mask_is_ignored():
+    imgs, masks, nrms = _views()
+    imgs[0][0, 0] = np.nan
+    masks[0][0, 0] = False
+    Problem(imgs, masks, nrms)
+
+
+def test_empty_mask():
+    _expect("view 0.*empty", masks=lambda kw: kw["masks"][0].fill(False))
+
+
+def test_zero_normals():
+    _expect("view 1.*unit length", normals=lambda kw: kw["normals"][1].__setitem__((1, 1), 0))
+
+
+def test_shape_mismatch():
+    _expect("view 0.*mask shape", masks=lambda kw: kw["masks"].__setitem__(0, np.ones((5, 7), bool)))
+    _expect("view 1.*normals shape", normals=lambda kw: kw["normals"].__setitem__(1, np.ones((6, 7, 2))))
+    _expect("channels", images=lambda kw: kw["images"].__setitem__(1, np.ones((6, 7, 1))))
+
+
+def test_correspondence_indices_out_of_range():
+    imgs, masks, nrms = _views()
+    for corr, match in [
+        (Correspondences([0], [42], [5], [[1.0, 1.0]]), "view_b index out of range"),
+        (Correspondences([0], [420], [1], [[1.0, 1.0]]), "pixel_a 420 out of range"),
+        (Correspondences([0], [4], [1], [[10.0, 1.0]]), "outside view 1"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            Problem(imgs, masks, nrms, correspondences=corr)

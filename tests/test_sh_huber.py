@@ -1,0 +1,39 @@
+import numpy as np
+
+from core.huber import huber, majorant, mm_weight
+from core.sh import sh_basis, sh_products, unpack_products
+
+
+def test_sh_basis_matches_closed_form():
+    rng = np.random.default_rng(1)
+    n = rng.standard_normal((50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    nu = sh_basis(n, np.float64)
+    for (n1, n2, n3), row in zip(n, nu):
+        expected = [n1, n2, n3, 1, n1 * n2, n1 * n3, n2 * n3, n1 ** 2 - n2 ** 2, 3 * n3 ** 2 - 1]
+        np.testing.assert_allclose(row, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_sh_products_give_the_outer_product():
+    rng = np.random.default_rng(2)
+    nu = rng.standard_normal((7, 9))
+    w = rng.random(7)
+    M = unpack_products(w @ sh_products(nu))
+    np.testing.assert_allclose(M, (nu * w[:, None]).T @ nu, rtol=1e-12)
+
+
+def test_majorant_is_above_huber_and_touches_at_x0():
+    delta = 1e-2
+    x = np.linspace(-0.2, 0.2, 2001)
+    for x0 in [0.0, 0.3 * delta, -delta, 1.5 * delta, -0.05, 0.17]:
+        psi = majorant(x, x0, delta)
+        assert np.all(psi >= huber(x, delta) - 1e-12), x0
+        np.testing.assert_allclose(majorant(x0, x0, delta), huber(x0, delta), rtol=1e-12, atol=1e-15)
+        # psi is the quadratic w x^2 / 2 + const with w = mm_weight(x0).
+        curv = majorant(1.0, x0, delta) - majorant(0.0, x0, delta)
+        np.testing.assert_allclose(curv, mm_weight(x0, delta) / 2, rtol=1e-12)
+
+
+def test_huber_branches():
+    d = 0.1
+    np.testing.assert_allclose(huber(np.array([0.05, -0.5]), d), [0.05 ** 2 / 0.2, 0.5 - 0.05])
