@@ -227,3 +227,28 @@ def test_fill_unseen_2d_and_bad_input():
         fill_unseen(tex, np.zeros_like(seen), inside)
     with pytest.raises(ValueError, match="margin"):
         fill_unseen(tex, seen, inside, margin=-1)
+
+
+@pytest.mark.parametrize("k", [2, 3, 5, 9])
+def test_weighted_median_paths_match_reference(monkeypatch, k):
+    # Groups of k records with ties and zero weights; both the sort-free and
+    # the sorting path must give the textbook weighted median.
+    rng = np.random.default_rng(k)
+    g = 300
+    vals = rng.integers(0, 4, (2, g * k)).astype(float)          # many ties
+    w = rng.integers(0, 3, g * k).astype(float)                   # zero weights too
+    count = np.full(g, k)
+    start = np.arange(g) * k
+
+    def reference(v, wt):
+        if wt.sum() == 0:
+            wt = np.ones_like(wt)
+        o = np.argsort(v, kind="stable")
+        v, cw = v[o], np.cumsum(wt[o])
+        half = cw[-1] / 2
+        return 0.5 * (v[np.argmax(cw >= half)] + v[np.argmax(cw > half)])
+
+    expect = np.array([[reference(vals[ch, s:s + k], w[s:s + k]) for ch in range(2)] for s in start])
+    for pairwise_max in (0, 100):
+        monkeypatch.setattr(fusion, "_PAIRWISE_MAX_K", pairwise_max)
+        np.testing.assert_array_equal(fusion._weighted_median(count, start, vals, w), expect)
