@@ -261,7 +261,6 @@ def _rasterise(q, tri_pos, n, margin):
 
 def _seam_pairs(q, tri_vert, inside, n):
     """Texel pairs across UV seams (see :func:`texture_layout`)."""
-    t = q.shape[0]
     ea = np.array([0, 1, 2])
     eb = np.array([1, 2, 0])
     ec = np.array([2, 0, 1])                       # vertex opposite each edge
