@@ -59,18 +59,18 @@ SCENES = {
         photo_format="EXR", user_mesh="fine"),
     # (b) the paper's figure 2: photographic albedo, partly specular, one extended light with cast shadows.
     "photo_sun": dict(
-        resolution=(480, 360), n_cameras=13, samples=48, texture_size=512, seed=2000,
+        resolution=(480, 360), n_cameras=13, samples=48, texture_size=256, seed=2000,
         albedo="photo:chelsea.png", interpolation="Linear", material="principled",
-        lighting=dict(kind="sun", sun_strength=3.0, sun_angle_deg=5.0, sun_elevation_deg=50.0,
+        lighting=dict(kind="sun", sun_strength=4.5, sun_angle_deg=5.0, sun_elevation_deg=50.0,
                       sun_azimuth_deg=-35.0, hdri=["studio"], strength=0.08, rotation_deg=[0.0]),
         photo_format="PNG", user_mesh="fine"),
     # (c) the paper's figure 5: (b)'s photos, but a smoothed, coarser target mesh with the same UV layout.
     "photo_sun_coarse": dict(base="photo_sun", user_mesh="coarse"),
     # (d) lighting that changes per view (the paper's per-view lighting), JPEG photos.
     "varying_light": dict(
-        resolution=(480, 360), n_cameras=12, samples=48, texture_size=512, seed=4000,
+        resolution=(480, 360), n_cameras=12, samples=48, texture_size=256, seed=4000,
         albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[1.0, 0.6],
+        lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.9, 0.45],
                       rotation_step_deg=137.50776405),
         photo_format="JPEG", user_mesh="fine"),
 }
@@ -87,6 +87,7 @@ PLINTH_ALBEDO_PHOTO = (0.35, 0.37, 0.40)
 PHOTO_ALBEDO_SCALE = 0.85          # albedo = scale * srgb_to_linear(photo), so that albedo < 1
 CAMERA_LENSES_MM = (35.0, 42.0, 50.0, 60.0)
 SENSOR_WIDTH_MM = 36.0
+MESH_OBJECT = "Subject"
 UV_ANGLE_LIMIT_DEG = 55.0   # 66 (the default) gave folded, overlapping islands on this mesh
 UV_ISLAND_MARGIN = 0.01
 COARSE_SMOOTH = dict(factor=0.5, repeat=12)
@@ -94,7 +95,8 @@ COARSE_SMOOTH = dict(factor=0.5, repeat=12)
 RENDER_COMMON = dict(
     engine="CYCLES", device="CPU", use_adaptive_sampling=False, use_denoising=False,
     max_bounces=6, diffuse_bounces=3, glossy_bounces=3, transmission_bounces=2, transparent_max_bounces=4,
-    sample_clamp_direct=0.0, sample_clamp_indirect=10.0,
+    sample_clamp_direct=0.0, sample_clamp_indirect=3.0, caustics_reflective=False, caustics_refractive=False,
+    blur_glossy=1.0, use_light_tree=False,
     pixel_filter_type="BLACKMAN_HARRIS", filter_width=1.5,
     view_transform="Standard", look="None", exposure=0.0, gamma=1.0, display_device="sRGB",
     dither_intensity=0.0,
@@ -529,7 +531,8 @@ def configure_render(scene, spec):
     cy.samples = spec["samples"]
     for k in ("use_adaptive_sampling", "use_denoising", "max_bounces", "diffuse_bounces", "glossy_bounces",
               "transmission_bounces", "transparent_max_bounces", "sample_clamp_direct", "sample_clamp_indirect",
-              "pixel_filter_type", "filter_width"):
+              "caustics_reflective", "caustics_refractive", "blur_glossy",
+              "pixel_filter_type", "filter_width", "use_light_tree"):
         setattr(cy, k, rc[k])
     cy.use_animated_seed = False
     scene.render.resolution_x, scene.render.resolution_y = spec["resolution"]
@@ -613,7 +616,7 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     gt_img.alpha_mode = "CHANNEL_PACKED"
     mat, mat_info = make_material(spec["material"], gt_img, spec["interpolation"])
 
-    obj = bpy.data.objects.new("Object", fine)
+    obj = bpy.data.objects.new(MESH_OBJECT, fine)
     scene.collection.objects.link(obj)
     fine.materials.append(mat)
 
@@ -777,7 +780,7 @@ def _generate_derived(name, spec, out_dir, reuse_base):
     finish_shading(coarse)
     bpy.data.meshes.remove(fine)
     bpy.data.meshes.remove(mid)
-    obj = bpy.data.objects.new("Object", coarse)
+    obj = bpy.data.objects.new(MESH_OBJECT, coarse)
     scene.collection.objects.link(obj)
     cam_coll = bpy.data.collections.new("Cameras")
     scene.collection.children.link(cam_coll)
@@ -826,7 +829,7 @@ _DESCRIPTIONS = {
 
 
 def _mesh_record(me, info, which):
-    return dict(info, object="Object", mesh=me.name, which=which, vertices=len(me.vertices),
+    return dict(info, object=MESH_OBJECT, mesh=me.name, which=which, vertices=len(me.vertices),
                 faces=len(me.polygons), triangles=len(me.loop_triangles) or None, uv_map=me.uv_layers.active.name,
                 shading="smooth, sharp edges from angle 60 deg", units="metres, object at the origin, +Z up, "
                 "Suzanne faces -Y")

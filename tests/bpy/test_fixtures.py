@@ -1,0 +1,178 @@
+"""blend_fixtures/make_fixtures.py: render a small lambert_sky with real Cycles and check what the user gets.
+
+Also checks that the checked-in fixtures are complete and consistent with their scene.json (no rendering).
+"""
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+pytestmark = pytest.mark.bpy
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+FIXTURES = os.path.join(ROOT, "blend_fixtures")
+
+N_CAMS = 4
+RES = (160, 120)
+TEX = 256
+
+
+def _load_script():
+    spec = importlib.util.spec_from_file_location("make_fixtures", os.path.join(FIXTURES, "make_fixtures.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def mf():
+    return _load_script()
+
+
+@pytest.fixture(scope="module")
+def small_scene(mf, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fixtures")
+    record = mf.generate("lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=8, texture_size=TEX)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return os.path.join(str(out), "lambert_sky"), record
+
+
+def _open(path):
+    bpy.ops.wm.open_mainfile(filepath=path)
+    return bpy.context.scene
+
+
+def _cameras(scene):
+    return sorted((o for o in scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
+
+
+def test_user_file_has_mesh_cameras_photos_and_no_ground_truth(small_scene, mf):
+    scene_dir, record = small_scene
+    scene = _open(os.path.join(scene_dir, "scene.blend"))
+
+    mesh_objs = [o for o in scene.objects if o.type == "MESH"]
+    assert [o.name for o in mesh_objs] == [mf.MESH_OBJECT]
+    me = mesh_objs[0].data
+    assert me.uv_layers.active is not None and me.uv_layers.active.name == record["mesh"]["uv_map"]
+    uv = np.empty(len(me.loops) * 2)
+    me.uv_layers.active.data.foreach_get("uv", uv)
+    assert uv.min() >= 0.0 and uv.max() <= 1.0 and np.ptp(uv) > 0.5
+    assert len(me.polygons) == record["mesh"]["faces"]
+
+    # No lights, no world lighting, no ground-truth material anywhere in the user's file.
+    assert not [o for o in bpy.data.objects if o.type == "LIGHT"]
+    assert len(bpy.data.lights) == 0
+    assert scene.world is None and len(bpy.data.worlds) == 0
+    assert len(bpy.data.materials) == 0 and len(me.materials) == 0
+    assert not [i for i in bpy.data.images if "albedo" in i.name or "albedo" in i.filepath]
+
+    cams = _cameras(scene)
+    assert len(cams) == N_CAMS == len(record["cameras"])
+    assert (scene.render.resolution_x, scene.render.resolution_y) == RES
+    for cam in cams:
+        assert cam.data.show_background_images
+        assert len(cam.data.background_images) == 1
+        img = cam.data.background_images[0].image
+        assert img is not None and img.packed_file is None
+        assert img.filepath.startswith("//photos/"), img.filepath       # relative to the .blend
+        path = bpy.path.abspath(img.filepath)
+        assert os.path.isfile(path)
+        assert tuple(img.size) == RES                                    # it loads, at the photo size
+        assert img.has_data
+        assert img.colorspace_settings.name == "Linear Rec.709"
+
+
+def test_ground_truth_texture(small_scene, mf):
+    scene_dir, record = small_scene
+    gt_info = record["albedo_gt"]
+    assert gt_info["size"] == [TEX, TEX]
+    gt = mf.read_exr(os.path.join(scene_dir, gt_info["file"]))
+    assert gt.shape == (TEX, TEX, 4)
+    inside = gt[..., 3] > 0.5
+    assert set(np.unique(gt[..., 3])) == {0.0, 1.0}
+    assert 0.3 < inside.mean() < 0.9                                   # the UV islands fill a fair part of the map
+    assert gt_info["overlapping_texels"] == 0
+    # Piecewise constant: inside the islands, exactly the region albedos (stored as half floats).
+    regions = np.array(list(mf.REGION_ALBEDO.values()), dtype=np.float16).astype(np.float32)
+    colours = np.unique(gt[inside][:, :3], axis=0)
+    assert len(colours) == len(regions)
+    assert all(np.any(np.all(regions == c, axis=1)) for c in colours)
+    # The padding holds real albedo values too (no black bleeding into islands).
+    assert np.all(np.any(np.all(gt[~inside][:, None, :3] == regions[None], axis=2), axis=1))
+
+
+def test_photos_are_plausible(small_scene, mf):
+    scene_dir, record = small_scene
+    for cam in record["cameras"]:
+        photo = mf.read_exr(os.path.join(scene_dir, cam["photo"]))
+        assert photo.shape == (RES[1], RES[0], 4)                       # RGBA, transparent film
+        alpha = photo[..., 3]
+        obj = alpha > 0.99
+        assert 0.05 < obj.mean() < 0.8, f"{cam['name']}: the object covers {obj.mean():.2f} of the frame"
+        rgb = photo[obj][:, :3]
+        assert np.all(np.isfinite(rgb))
+        assert 0.03 < rgb.mean() < 1.0, f"{cam['name']}: mean radiance {rgb.mean():.3f}"
+        assert (rgb.max(axis=1) <= 0.005).mean() < 0.05                 # not black
+        assert (rgb.min(axis=1) >= 1.0).mean() < 0.05                   # not burnt out
+
+
+def test_scene_json_cameras_match_the_blend_file(small_scene):
+    """K_core / R_core / t_core in scene.json project like Blender's own camera."""
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    scene_dir, record = small_scene
+    scene = _open(os.path.join(scene_dir, "scene.blend"))
+    me = scene.objects["Subject"].data
+    pts = np.array([v.co for v in list(me.vertices)[::97]], dtype=np.float64)
+    w, h = RES
+    for cam, rec in zip(_cameras(scene), record["cameras"]):
+        assert cam.name == rec["name"]
+        np.testing.assert_allclose(np.array(cam.matrix_world), rec["matrix_world"], atol=1e-5)
+        K, R, t = (np.array(rec[k]) for k in ("K_core", "R_core", "t_core"))
+        pc = pts @ R.T + t
+        assert np.all(pc[:, 2] > 0)                                     # the object is in front of every camera
+        proj = pc @ K.T
+        xy = proj[:, :2] / proj[:, 2:]
+        ref = []
+        for p in pts:
+            ndc = world_to_camera_view(scene, cam, Vector(p))           # (0,0) bottom-left, (1,1) top-right
+            ref.append((ndc.x * w - 0.5, (1.0 - ndc.y) * h - 0.5))      # core: pixel centres at integers, y down
+        np.testing.assert_allclose(xy, np.array(ref), atol=2e-3)
+
+
+SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light")
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_checked_in_fixture_is_complete(name, mf):
+    scene_dir = os.path.join(FIXTURES, name)
+    if not os.path.isfile(os.path.join(scene_dir, "scene.json")):
+        pytest.fail(f"blend_fixtures/{name} is missing: run blend_fixtures/make_fixtures.py --only {name}")
+    with open(os.path.join(scene_dir, "scene.json")) as f:
+        record = json.load(f)
+    n = record["albedo_gt"]["size"][0]
+    gt = mf.read_exr(os.path.join(scene_dir, "albedo_gt.exr"))
+    assert gt.shape == (n, n, 4)
+    assert np.all(np.isfinite(gt)) and 0.0 <= gt[..., :3].min() and gt[..., :3].max() < 1.0
+    w, h = record["render"]["resolution"]
+    ext = {"EXR": ".exr", "PNG": ".png", "JPEG": ".jpg"}[record["photo"]["format"].replace("OpenEXR", "EXR")]
+    for cam in record["cameras"]:
+        path = os.path.normpath(os.path.join(scene_dir, cam["photo"]))
+        assert os.path.isfile(path) and path.endswith(ext), path
+    scene = _open(os.path.join(scene_dir, "scene.blend"))
+    cams = _cameras(scene)
+    assert [c.name for c in cams] == [c["name"] for c in record["cameras"]]
+    assert 8 <= len(cams) <= 16
+    assert len(bpy.data.lights) == 0 and len(bpy.data.materials) == 0 and scene.world is None
+    for cam in cams:
+        img = cam.data.background_images[0].image
+        assert os.path.isfile(bpy.path.abspath(img.filepath)) and tuple(img.size) == (w, h)
+    me = scene.objects[record["mesh"]["object"]].data
+    assert len(me.vertices) == record["mesh"]["vertices"] and me.uv_layers.active.name == "UVMap"
