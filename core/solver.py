@@ -385,6 +385,16 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
     return views, texture, seen
 
 
+def _unknown_view_pairs(d: Discretization):
+    """The (unknown, view) pairs that observations fall in, and each observation's pair; cached on d."""
+    cached = getattr(d, "_pairs", None)
+    if cached is None:
+        key = d.obs_unknown * d.n_views + d.obs_view
+        uniq, obs_pair = np.unique(key, return_inverse=True)
+        cached = d._pairs = (uniq // d.n_views, uniq % d.n_views, obs_pair)
+    return cached
+
+
 def _varpro_step(ch: "_Channel"):
     """Gauss-Newton step on sigma with rho eliminated through its data-term response.
 
@@ -406,21 +416,22 @@ def _varpro_step(ch: "_Channel"):
     w = d.obs_weight * mm_weight(r, ch.delta)
     D = np.bincount(u, weights=w * a * a, minlength=d.n_unknowns)
     D = np.maximum(D, 1e-30)
+    pair_u, pair_v, obs_pair = _unknown_view_pairs(d)
     nu_o = d.nu[d.obs_pixel]
-    flat = u * nv + 9 * d.obs_view
     c_g = w * (vals - 2 * rho_o * a) / D[u]
     c_q = w * rho_o * a
-    G = np.zeros(d.n_unknowns * nv)
-    Q = np.zeros(d.n_unknowns * nv)
+    k = pair_u.size
+    G = np.zeros((d.n_unknowns, nv))
+    Q = np.zeros((d.n_unknowns, nv))
+    cols = 9 * pair_v
     for j in range(9):
-        G += np.bincount(flat + j, weights=c_g * nu_o[:, j], minlength=G.size)
-        Q += np.bincount(flat + j, weights=c_q * nu_o[:, j], minlength=Q.size)
-    G = G.reshape(d.n_unknowns, nv)
-    Q = Q.reshape(d.n_unknowns, nv)
+        G[pair_u, cols + j] = np.bincount(obs_pair, weights=c_g * nu_o[:, j], minlength=k)
+        Q[pair_u, cols + j] = np.bincount(obs_pair, weights=c_q * nu_o[:, j], minlength=k)
     npix = d.nu.shape[0]
     p_w = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
     p_r = np.bincount(d.obs_pixel, weights=w * r * rho_o, minlength=npix)
-    JtJ = G.T @ (D[:, None] * G) + Q.T @ G + G.T @ Q
+    QtG = Q.T @ G
+    JtJ = G.T @ (D[:, None] * G) + QtG + QtG.T
     Jtr = G.T @ np.bincount(u, weights=w * r * a, minlength=d.n_unknowns)
     for v in range(m):
         lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
