@@ -54,6 +54,7 @@ SCENES = {
     # (a) the paper's figure 1: Lambertian, piecewise-constant albedo, skydome-like environment light.
     "lambert_sky": dict(
         resolution=(320, 240), n_cameras=13, samples=48, texture_size=512, seed=1000, film_transparent=True,
+        view_gt=True,
         albedo="regions", interpolation="Closest", material="diffuse",
         lighting=dict(kind="hdri", hdri=["forest"], strength=1.0, rotation_deg=[0.0]),
         photo_format="EXR", user_mesh="fine"),
@@ -90,7 +91,7 @@ SENSOR_WIDTH_MM = 36.0
 MESH_OBJECT = "Subject"
 UV_ANGLE_LIMIT_DEG = 55.0   # 66 (the default) gave folded, overlapping islands on this mesh
 UV_ISLAND_MARGIN = 0.01
-COARSE_SMOOTH = dict(factor=0.5, repeat=12)
+COARSE_SMOOTH = dict(factor=0.5, repeat=10)
 
 RENDER_COMMON = dict(
     engine="CYCLES", device="CPU", use_adaptive_sampling=False, use_denoising=False,
@@ -500,6 +501,9 @@ def make_material(kind, gt_image, interpolation):
     tex.interpolation = interpolation
     tex.extension = "EXTEND"
     out = nt.nodes.new("ShaderNodeOutputMaterial")
+    aov = nt.nodes.new("ShaderNodeOutputAOV")      # the albedo each pixel sees, for the per-view ground truth
+    aov.aov_name = VIEW_GT_AOV
+    nt.links.new(tex.outputs["Color"], aov.inputs["Color"])
     if kind == "diffuse":
         bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
         bsdf.inputs["Roughness"].default_value = 0.0
@@ -521,6 +525,30 @@ def make_material(kind, gt_image, interpolation):
 # --------------------------------------------------------------------------------------------------------------
 
 PHOTO_EXT = {"EXR": ".exr", "PNG": ".png", "JPEG": ".jpg"}
+VIEW_GT_AOV = "albedo"
+
+
+def save_view_gt(scene, path):
+    """Write the last render's albedo AOV as RGBA half EXR (RGB premultiplied by A = the object's coverage)."""
+    import OpenEXR
+    ims = scene.render.image_settings
+    saved = (ims.media_type, ims.file_format, ims.color_mode, ims.color_depth, ims.exr_codec)
+    tmp = path + ".multilayer.exr"
+    try:
+        ims.media_type = "MULTI_LAYER_IMAGE"
+        ims.color_depth = "32"
+        ims.exr_codec = "ZIP"
+        bpy.data.images["Render Result"].save_render(tmp, scene=scene)
+    finally:
+        ims.media_type = saved[0]
+        ims.file_format, ims.color_mode, ims.color_depth, ims.exr_codec = saved[1:]
+    with OpenEXR.File(tmp, separate_channels=True) as f:
+        part = [p for p in f.parts if p.name().endswith("." + VIEW_GT_AOV)][0]
+        pre = part.name()
+        rgba = np.stack([np.asarray(part.channels[f"{pre}.{c}"].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
+    os.remove(tmp)
+    write_exr_rgba(path, rgba)
+    return rgba
 
 
 def configure_render(scene, spec):
@@ -588,10 +616,15 @@ def resolved_spec(name, **overrides):
     return spec
 
 
-def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, texture_size=None, reuse_base=True):
-    """Render scene ``name`` into ``out_dir/name``; return its scene.json dictionary."""
+def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, texture_size=None, view_gt=None,
+             reuse_base=True):
+    """Render scene ``name`` into ``out_dir/name``; return its scene.json dictionary.
+
+    The keyword arguments override the scene's defaults in SCENES (None keeps them). ``view_gt`` also writes
+    per-photo ground-truth albedo images in ``gt_views/``.
+    """
     spec = resolved_spec(name, resolution=resolution, n_cameras=n_cameras, samples=samples,
-                         texture_size=texture_size)
+                         texture_size=texture_size, view_gt=view_gt)
     if "base" in spec:
         return _generate_derived(name, spec, out_dir, reuse_base)
     t_start = time.time()
@@ -631,6 +664,11 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     cams = place_cameras(spec["n_cameras"], spec["resolution"], centre, radius, spec["seed"])
     photo_info = configure_render(scene, spec)
     ext = PHOTO_EXT[spec["photo_format"]]
+    view_gt = bool(spec.get("view_gt"))
+    if view_gt:
+        aov = scene.view_layers[0].aovs.add()
+        aov.name, aov.type = VIEW_GT_AOV, "COLOR"
+        os.makedirs(os.path.join(scene_dir, "gt_views"))
 
     # Lighting.
     L = spec["lighting"]
@@ -685,6 +723,8 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         bpy.ops.render.render(write_still=True)
         render_times.append(time.time() - t0)
         log(f"{name}: {cname} rendered in {render_times[-1]:.1f} s")
+        if view_gt:
+            save_view_gt(scene, os.path.join(scene_dir, "gt_views", cname + ".exr"))
 
         mw = cobj.matrix_world
         r_c2w = np.array(mw.to_3x3().normalized())
@@ -697,13 +737,16 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
             matrix_world=np.array(mw, dtype=np.float64).tolist(), location=cpos.tolist(),
             K_blender=kb, K_core=kc, R_core=r_cv.tolist(), t_core=(-r_cv @ cpos).tolist(),
             azimuth_deg=c["azimuth_deg"], elevation_deg=c["elevation_deg"], distance=c["distance"],
-            seed=seed, lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot)))
+            seed=seed, lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot),
+            albedo_view=("gt_views/" + cname + ".exr") if view_gt else None))
 
     # ---- The user's file: mesh + cameras + photos; strip the ground truth and the lights. ----
     if sun is not None:
         bpy.data.objects.remove(sun)
         bpy.data.lights.remove(ld)
     scene.world = None
+    if view_gt:
+        scene.view_layers[0].aovs.remove(aov)
     for wd in list(bpy.data.worlds):
         bpy.data.worlds.remove(wd)
     fine.materials.clear()
@@ -721,7 +764,8 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         name=name,
         description=_DESCRIPTIONS[name],
         blender_version=bpy.app.version_string,
-        files=dict(blend="scene.blend", albedo_gt="albedo_gt.exr", photos="photos/"),
+        files=dict(blend="scene.blend", albedo_gt="albedo_gt.exr", photos="photos/",
+                   gt_views="gt_views/" if view_gt else None),
         mesh=mesh_record,
         albedo_gt=dict(file="albedo_gt.exr", size=[n, n], channels="RGBA", dtype="half",
                        colour="linear Rec.709 (scene linear), not colour managed",
@@ -738,6 +782,11 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
                     seed_rule="view i uses seed seed_base + i", resolution=list(spec["resolution"]),
                     cycles_version=bpy.app.version_string, use_persistent_data=True),
         photo=photo_info,
+        gt_views=(dict(folder="gt_views/", channels="RGBA", dtype="half",
+                       meaning="per photo, the albedo texture as Cycles sampled it (an AOV of the texture colour, same "
+                               "samples and pixel filter as the photo); RGB is premultiplied by A; A = fraction of the "
+                               "pixel's samples that hit the mesh, so albedo = RGB / A where A > 0")
+                  if view_gt else None),
         cameras=cam_records,
         camera_convention=("matrix_world: Blender camera-to-world (camera looks down -Z, +Y up). K_blender: pixel "
                            "centres at (c+0.5, r+0.5). K_core/R_core/t_core: core.camera convention (x right, y "
@@ -810,7 +859,9 @@ def _generate_derived(name, spec, out_dir, reuse_base):
         mesh=dict(_mesh_record(coarse, mesh_info, "coarse"), coarse_smoothing=COARSE_SMOOTH,
                   distance_to_render_mesh=dist, render_mesh=b["mesh"]),
     )
-    record["cameras"] = [dict(c, photo="../" + base + "/" + c["photo"]) for c in b["cameras"]]
+    record["cameras"] = [dict(c, photo="../" + base + "/" + c["photo"],
+                              albedo_view=("../" + base + "/" + c["albedo_view"]) if c.get("albedo_view") else None)
+                         for c in b["cameras"]]
     write_json(os.path.join(scene_dir, "scene.json"), record)
     log(f"{name}: done (coarse mesh, distance to the render mesh mean {dist['mean']:.4f}, max {dist['max']:.4f})")
     return record
@@ -871,11 +922,13 @@ def main(argv=None):
     p.add_argument("--cameras", type=int)
     p.add_argument("--samples", type=int)
     p.add_argument("--texture-size", type=int)
+    p.add_argument("--view-gt", action="store_true", default=None,
+                   help="also write per-photo ground-truth albedo images (default: lambert_sky only)")
     a = p.parse_args(argv)
     names = a.only or list(SCENES)
     for name in names:
         generate(name, a.out, resolution=a.resolution, n_cameras=a.cameras, samples=a.samples,
-                 texture_size=a.texture_size, reuse_base=True)
+                 texture_size=a.texture_size, view_gt=a.view_gt, reuse_base=True)
 
 
 if __name__ == "__main__":

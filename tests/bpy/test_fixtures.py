@@ -147,6 +147,73 @@ def test_scene_json_cameras_match_the_blend_file(small_scene):
         np.testing.assert_allclose(xy, np.array(ref), atol=2e-3)
 
 
+def test_per_view_ground_truth_is_the_texture_through_the_uv_map(small_scene, mf):
+    """The render's material sampled albedo_gt.exr through the mesh's UV map with the recorded conventions.
+
+    gt_views/ holds the albedo each pixel saw (an AOV of the texture colour). Fully covered pixels show only the
+    region albedos; and front-facing mesh vertices, projected with scene.json's cameras, see the texel that their
+    UV picks in albedo_gt.exr (row 0 = top = v 1, "Closest" lookup).
+    """
+    scene_dir, record = small_scene
+    gt = mf.read_exr(os.path.join(scene_dir, "albedo_gt.exr"))
+    regions = np.array(list(mf.REGION_ALBEDO.values()), dtype=np.float16).astype(np.float32)
+    scene = _open(os.path.join(scene_dir, "scene.blend"))
+    me = scene.objects[mf.MESH_OBJECT].data
+    n_loops = len(me.loops)
+    uv = np.empty(n_loops * 2)
+    me.uv_layers.active.data.foreach_get("uv", uv)
+    uv = uv.reshape(-1, 2)
+    lv = np.empty(n_loops, dtype=np.int64)
+    me.loops.foreach_get("vertex_index", lv)
+    co = np.empty(len(me.vertices) * 3)
+    me.vertices.foreach_get("co", co)
+    nrm = np.empty(len(me.vertices) * 3)
+    me.vertices.foreach_get("normal", nrm)
+    co, nrm = co.reshape(-1, 3), nrm.reshape(-1, 3)
+    # Loops well inside a texel and away from texel edges: the "Closest" lookup is then unambiguous.
+    fx, fy = uv[:, 0] * TEX, (1.0 - uv[:, 1]) * TEX
+    rows, cols = np.clip(fy.astype(int), 1, TEX - 2), np.clip(fx.astype(int), 1, TEX - 2)
+    tex_rgb = gt[rows, cols, :3]
+    # Keep loops whose 5x5 texel neighbourhood has one colour (away from region edges).
+    same = np.ones(len(rows), dtype=bool)
+    for dr in (-2, -1, 0, 1, 2):
+        for dc in (-2, -1, 0, 1, 2):
+            rr, cc = np.clip(rows + dr, 0, TEX - 1), np.clip(cols + dc, 0, TEX - 1)
+            same &= np.all(gt[rr, cc, :3] == tex_rgb, axis=1)
+    agree = total = 0
+    for cam in record["cameras"]:
+        view = mf.read_exr(os.path.join(scene_dir, cam["albedo_view"]))
+        assert view.shape == (RES[1], RES[0], 4)
+        a = view[..., 3]
+        full = a > 0.999
+        assert full.mean() > 0.05
+        rgb = view[full][:, :3] / a[full][:, None]
+        exact = np.any(np.all(np.abs(rgb[:, None] - regions[None]) < 2e-3, axis=2), axis=1)
+        assert exact.mean() > 0.85, f"{cam['name']}: only {exact.mean():.2f} of the pixels show a region albedo"
+        # Project loops of front-facing vertices.
+        K, R, t = (np.array(cam[k]) for k in ("K_core", "R_core", "t_core"))
+        centre = -R.T @ t
+        p = co[lv]
+        facing = np.einsum("ij,ij->i", nrm[lv], centre - p) > 0.5 * np.linalg.norm(centre - p, axis=1)
+        pc = p @ R.T + t
+        xy = (pc @ K.T)[:, :2] / pc[:, 2:]
+        px = np.round(xy).astype(int)
+        ok = same & facing & (px[:, 0] >= 0) & (px[:, 0] < RES[0]) & (px[:, 1] >= 0) & (px[:, 1] < RES[1])
+        px = px[ok]
+        seen = view[px[:, 1], px[:, 0]]
+        # Pixels whose 3x3 neighbourhood is fully covered and of one colour (away from silhouettes and edges).
+        covered = seen[:, 3] > 0.999
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                nb = view[np.clip(px[:, 1] + dy, 0, RES[1] - 1), np.clip(px[:, 0] + dx, 0, RES[0] - 1)]
+                covered &= (nb[:, 3] > 0.999) & np.all(np.abs(nb[:, :3] - seen[:, :3]) < 2e-3, axis=1)
+        diff = np.abs(seen[covered, :3] / seen[covered, 3:] - tex_rgb[ok][covered]).max(axis=1)
+        agree += int((diff < 2e-3).sum())
+        total += int(covered.sum())
+    assert total > 200
+    assert agree / total > 0.9, f"only {agree}/{total} projected vertices see their own texel's albedo"
+
+
 SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light")
 
 
