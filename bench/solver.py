@@ -133,8 +133,7 @@ def main(argv=None):
     rows = []
     for name in a.rows:
         domain = "texture" if name == "texture" else "image"
-        lam = a.lam if domain == "image" else 0.1
-        params = SolverParams(domain=domain, lam=lam, mu=a.mu, max_iter=a.max_iter)
+        params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, max_iter=a.max_iter)
         with mp.get_context("spawn").Pool(1) as pool:
             row = pool.map(run_row, [(name, a.scale, pairs, params)])[0]
         rows.append(row)

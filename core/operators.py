@@ -31,8 +31,9 @@ import scipy.sparse as sp
 
 from .problem import Problem
 from .sh import sh_basis, sh_products
+from .uvlayout import texel_of_uv
 
-__all__ = ["Discretization", "image_domain", "texture_domain", "texel_coords"]
+__all__ = ["Discretization", "image_domain", "texture_domain"]
 
 
 @dataclass
@@ -217,11 +218,6 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy())
 
 
-def texel_coords(uv: np.ndarray, size: int):
-    """Continuous texel coordinates ``(x, y)`` = (column, row) of UVs, row 0 at v = 1."""
-    return uv[..., 0] * size - 0.5, (1.0 - uv[..., 1]) * size - 0.5
-
-
 def texture_domain(problem: Problem, max_edge_ratio: float = 4.0) -> Discretization:
     """Reflectance on the texels of the mesh's UV map.
 
@@ -243,8 +239,8 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0) -> Discretizat
     tex_obs, pix_obs, w_obs = [], [], []
     for i in range(problem.n_views):
         mask = problem.masks[i]
-        x, y = texel_coords(problem.uv[i][mask].astype(np.float64), size)
-        flat, wts = _bilinear(x, y, inside)
+        row, col = texel_of_uv(problem.uv[i][mask], size)
+        flat, wts = _bilinear(col, row, inside)
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), 4)

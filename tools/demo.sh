@@ -9,5 +9,5 @@ if [ ! -f "$scene" ]; then
   .venv/bin/python blend_fixtures/make_fixtures.py --only lambert_sky
 fi
 mkdir -p out
-.venv/bin/python -m blender_addon "$scene" --out out/demo --overwrite "$@"
+.venv/bin/python -m blender_addon "$scene" --object Subject --out out/demo --overwrite "$@"
 echo "wrote out/demo/ (open the EXRs in Blender or any EXR viewer)"
