@@ -71,7 +71,7 @@ SCENES = {
     "varying_light": dict(
         resolution=(480, 360), n_cameras=12, samples=48, texture_size=256, seed=4000,
         albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.9, 0.45],
+        lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.6, 0.45],
                       rotation_step_deg=137.50776405),
         photo_format="JPEG", user_mesh="fine"),
 }
@@ -673,6 +673,10 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     # Lighting.
     L = spec["lighting"]
     light_info = dict(L)
+    light_info["hdri_mapping"] = ("World: Environment Texture (equirectangular, Linear) of "
+                                  "<blender>/datafiles/studiolights/world/<hdri>.exr, its vector = Mapping node (type "
+                                  "Point, rotation (0, 0, rotation_z_deg)) of the Generated texture coordinate, "
+                                  "into a Background node of the given strength")
     sun = None
     if L["kind"] == "sun":
         ld = bpy.data.lights.new("sun", "SUN")

@@ -233,6 +233,12 @@ def test_checked_in_fixture_is_complete(name, mf):
     for cam in record["cameras"]:
         path = os.path.normpath(os.path.join(scene_dir, cam["photo"]))
         assert os.path.isfile(path) and path.endswith(ext), path
+        photo = mf.read_exr(path) if ext == ".exr" else mf.load_png_linear(path)
+        assert photo.shape[:2] == (h, w)
+        rgb = photo[..., :3] if photo.shape[2] == 3 else photo[photo[..., 3] > 0.99][:, :3]
+        assert 0.02 < rgb.mean() < 0.6, f"{path}: mean linear value {rgb.mean():.3f}"
+        # (Bright windows of the 'interior' HDRI clip in the background, as in real photos.)
+        assert (rgb.max(axis=-1) >= 0.999).mean() < 0.3, f"{path}: too many clipped pixels"
     scene = _open(os.path.join(scene_dir, "scene.blend"))
     cams = _cameras(scene)
     assert [c.name for c in cams] == [c["name"] for c in record["cameras"]]
