@@ -547,7 +547,7 @@ def save_view_gt(scene, path):
         pre = part.name()
         rgba = np.stack([np.asarray(part.channels[f"{pre}.{c}"].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
     os.remove(tmp)
-    write_exr_rgba(path, rgba)
+    write_exr_rgba(path, rgba)          # (a fresh file: no metadata)
     return rgba
 
 
@@ -569,6 +569,10 @@ def configure_render(scene, spec):
     scene.render.film_transparent = spec.get("film_transparent", False)
     scene.render.dither_intensity = rc["dither_intensity"]
     scene.render.use_persistent_data = True
+    # No date/time/host metadata in the files, so that a re-run gives byte-identical photos.
+    for prop in scene.render.bl_rna.properties:
+        if prop.identifier.startswith("use_stamp"):
+            setattr(scene.render, prop.identifier, False)
     scene.display_settings.display_device = rc["display_device"]
     vs = scene.view_settings
     vs.view_transform, vs.look, vs.exposure, vs.gamma = rc["view_transform"], rc["look"], rc["exposure"], rc["gamma"]
@@ -601,6 +605,57 @@ def configure_render(scene, spec):
     else:
         raise ValueError(fmt)
     return photo
+
+
+def strip_metadata(path):
+    """Drop the text metadata Blender and Cycles write (dates, render times), so that re-runs are byte-identical.
+
+    The pixels are untouched: EXR is rewritten from its own half-float channels, PNG loses its tEXt/zTXt/iTXt/tIME
+    chunks and JPEG its COM segments.
+    """
+    import struct
+    import zlib
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".exr":
+        import OpenEXR
+        with OpenEXR.File(path) as f:
+            ch = f.channels()
+            name = "RGBA" if "RGBA" in ch else "RGB"
+            arr = np.array(ch[name].pixels)
+        OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {name: arr}).write(path)
+        return
+    with open(path, "rb") as f:
+        data = f.read()
+    out = bytearray()
+    if ext == ".png":
+        out += data[:8]
+        i = 8
+        while i < len(data):
+            (n,) = struct.unpack(">I", data[i:i + 4])
+            kind = data[i + 4:i + 8]
+            chunk = data[i:i + 12 + n]
+            assert struct.unpack(">I", chunk[-4:])[0] == zlib.crc32(chunk[4:-4]) & 0xFFFFFFFF
+            if kind not in (b"tEXt", b"zTXt", b"iTXt", b"tIME"):
+                out += chunk
+            i += 12 + n
+    elif ext in (".jpg", ".jpeg"):
+        assert data[:2] == b"\xff\xd8"
+        out += data[:2]
+        i = 2
+        while True:
+            assert data[i] == 0xFF
+            marker = data[i + 1]
+            if marker == 0xDA:                      # start of scan: the rest is image data
+                out += data[i:]
+                break
+            (n,) = struct.unpack(">H", data[i + 2:i + 4])
+            if marker != 0xFE:                      # COM
+                out += data[i:i + 2 + n]
+            i += 2 + n
+    else:
+        raise ValueError(path)
+    with open(path, "wb") as f:
+        f.write(bytes(out))
 
 
 def resolved_spec(name, **overrides):
@@ -725,6 +780,7 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         scene.render.filepath = os.path.join(photo_dir, photo_name)
         t0 = time.time()
         bpy.ops.render.render(write_still=True)
+        strip_metadata(scene.render.filepath)
         render_times.append(time.time() - t0)
         log(f"{name}: {cname} rendered in {render_times[-1]:.1f} s")
         if view_gt:
