@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set up .venv/ if needed, then delight the bundled scene headless into out/demo/.
+# Set up .venv/ if needed, then delight the bundled scene headless into out/demo/ and draw its pictures.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
@@ -10,4 +10,5 @@ if [ ! -f "$scene" ]; then
 fi
 mkdir -p out
 .venv/bin/python -m blender_addon "$scene" --object Subject --out out/demo --overwrite "$@"
-echo "wrote out/demo/ (open the EXRs in Blender or any EXR viewer)"
+.venv/bin/python tools/demo_pictures.py out/demo --fixture "$(dirname "$scene")"
+echo "wrote out/demo/ (the albedo and per-view EXRs; pictures in out/demo/pictures/)"
