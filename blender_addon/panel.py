@@ -4,6 +4,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from . import previews
 from .operator import CAMERA_ITEMS, METHOD_ITEMS, DELIGHT_OT_run, get_status
 
 __all__ = ["DelightSettings", "VIEW3D_PT_delight", "operator_settings"]
@@ -90,6 +91,14 @@ class VIEW3D_PT_delight(bpy.types.Panel):
             box = layout.box()
             for line in _wrap(status, 40):
                 box.label(text=line)
+
+        obj = s.target or context.active_object
+        images = previews.find(obj.name) if obj is not None else []
+        if images:
+            box = layout.box()
+            box.label(text="Last run", icon="IMAGE_DATA")
+            for img in images:   # compare (photo | reflectance), then the lighting spheres
+                box.template_icon(icon_value=layout.icon(img), scale=8.0)
 
 
 def _wrap(text, width):

@@ -7,8 +7,9 @@ worker thread:
   reads bpy data and returns plain arrays.
 * :func:`compute` (any thread) is pure NumPy/SciPy: builds the problem,
   solves, fuses. It never touches bpy.
-* :func:`finish` (main thread) writes the files, then creates the image and
-  wires the material. This is the only step that changes anything.
+* :func:`finish` (main thread) writes the files, then creates the image,
+  wires the material and updates the panel's preview images
+  (:mod:`.previews`). This is the only step that changes anything.
 
 :func:`run` chains the three. A cancel (``cancel()`` returning True) raises
 :class:`core.solver.Cancelled` before :func:`finish`, so the scene and the
@@ -383,6 +384,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
     import bpy
 
     from . import material as _material
+    from . import previews as _previews
     from . import write as _write
 
     opt, inputs = prepared.options, prepared.inputs
@@ -410,6 +412,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
     stage(0.6, "material")
     image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
     mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
+    _previews.update(inputs.object_name, prepared, computed)   # pictures for the panel
     saved = None
     if opt.save_blend:
         stage(0.9, "saving the .blend")

@@ -1,0 +1,83 @@
+"""The panel's pictures of the last run: made by a run, saved with the .blend, replaced on re-run, not made on cancel."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from conftest import build_scene  # noqa: E402
+
+from blender_addon import pipeline, previews  # noqa: E402
+from blender_addon.core.pictures import BACKGROUND  # noqa: E402
+from blender_addon.core.solver import Cancelled  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+
+def options(out, **kw):
+    kw.setdefault("method", "texture")
+    kw.setdefault("texture_size", 32)
+    kw.setdefault("max_iter", 3)
+    return pipeline.Options(out_dir=str(out), **kw)
+
+
+def pixels(img):
+    w, h = img.size
+    px = np.empty(w * h * 4, dtype=np.float32)
+    img.pixels.foreach_get(px)
+    return np.round(px.reshape(h, w, 4)[::-1, :, :3] * 255).astype(np.uint8)
+
+
+def not_background(rgb):
+    return np.any(rgb != np.array(BACKGROUND, dtype=np.uint8), axis=2)
+
+
+def test_run_adds_compare_and_lighting_images_that_are_saved_with_the_file(tmp_path):
+    s = build_scene(str(tmp_path))           # 4 cameras, 64 x 48 photos
+    pipeline.run(s.scene, options(tmp_path / "out"))
+    compare, lighting = previews.find("Target")
+    assert (compare.name, lighting.name) == previews.image_names("Target") \
+        == ("Target_delight_compare", "Target_delight_lighting")
+    # Photo | reflectance side by side, each 64 x 48 under a label row.
+    c = pixels(compare)
+    assert c.shape[1] == 6 + 2 * (64 + 6) and c.shape[0] > 48
+    photo_half, ours_half = not_background(c[-54:-6, 6:70]), not_background(c[-54:-6, 76:140])
+    assert photo_half.mean() > 0.9 and 0.05 < ours_half.mean() < 0.9   # the reflectance only on the mesh
+    # One sphere per camera, 4 in a row, each a lit disc.
+    lit = not_background(pixels(lighting))
+    assert lighting.size[0] == 6 + 4 * (64 + 6) and 0.3 < lit.mean() < 0.8
+    for img in (compare, lighting):
+        assert img.packed_file is not None and img.use_fake_user
+    # They survive a save and reload (fake user + packed).
+    names = [compare.name, lighting.name]
+    path = str(tmp_path / "saved.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    again = previews.find("Target")
+    assert [i.name for i in again] == names
+    np.testing.assert_array_equal(pixels(again[0]), c)
+
+
+def test_rerun_replaces_the_images_and_project_drops_the_lighting(tmp_path):
+    s = build_scene(str(tmp_path))
+    pipeline.run(s.scene, options(tmp_path / "out"))
+    names = sorted(i.name for i in bpy.data.images)
+    pipeline.run(s.scene, options(tmp_path / "out", overwrite=True, max_iter=2))
+    assert sorted(i.name for i in bpy.data.images) == names            # no .001 copies
+    pipeline.run(s.scene, options(tmp_path / "out", overwrite=True, method="project"))
+    assert [i.name for i in previews.find("Target")] == ["Target_delight_compare"]
+
+
+def test_cancelled_run_adds_no_pictures(tmp_path):
+    s = build_scene(str(tmp_path))
+    before = sorted(i.name for i in bpy.data.images)
+    calls = []
+
+    def cancel():
+        calls.append(1)
+        return len(calls) > 3          # after gather and bake, in the solve
+
+    with pytest.raises(Cancelled):
+        pipeline.run(s.scene, options(tmp_path / "out"), cancel=cancel)
+    assert previews.find("Target") == [] and sorted(i.name for i in bpy.data.images) == before
