@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .huber import huber, mm_weight
 from .operators import Discretization, image_domain, texture_domain
+from .pyramid import coarsen, upsample_texels
 from .sh import DIFFUSE, unpack_products
 
 __all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
@@ -89,6 +90,8 @@ class SolverParams:
     threads: int = 2
     varpro: bool = True
     precision: str = "float32"
+    levels: int = 1
+    coarse_iter: int = 60
 
     def check(self):
         if self.domain not in ("texture", "image"):
@@ -186,12 +189,12 @@ def _pcg(matvec, b, x, dinv, iters):
 class _Channel:
     """The MM state of one colour channel."""
 
-    def __init__(self, d: Discretization, c: int, params: SolverParams):
+    def __init__(self, d: Discretization, c: int, params: SolverParams, rho0=None, sigma0=None):
         self.d = d
         self.ft = np.dtype(params.precision).type
         self.values = np.ascontiguousarray(d.values[:, c])
-        self.rho = np.ascontiguousarray(d.rho0[:, c]).astype(self.ft)
-        self.sigma = np.tile(DIFFUSE, (d.n_views, 1))
+        self.rho = np.ascontiguousarray(d.rho0[:, c] if rho0 is None else rho0).astype(self.ft)
+        self.sigma = np.tile(DIFFUSE, (d.n_views, 1)) if sigma0 is None else np.array(sigma0, dtype=np.float64)
         self.delta = params.delta
         self.cg_iter = params.cg_iter
         self.varpro = params.varpro and d.domain == "texture"
@@ -299,14 +302,30 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
         if cancel is not None and cancel():
             raise Cancelled("cancelled by the user")
 
-    report(0.0, f"building the {params.domain}-domain problem")
+    coarse = None
+    if params.domain == "texture" and params.levels > 1:
+        smaller = coarsen(problem)
+        if smaller is not None:
+            share = 0.3  # of the progress bar
+            sub = replace(params, levels=params.levels - 1, max_iter=params.coarse_iter,
+                          min_iter=min(params.min_iter, params.coarse_iter))
+            coarse = solve(smaller, sub, cancel=cancel,
+                           progress=None if progress is None else
+                           (lambda f, msg: progress(share * f, f"coarse level {smaller.texture.size}: {msg}")))
+            report(0.0 if coarse is None else 0.3, f"building the {params.domain}-domain problem")
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
     else:
         d = texture_domain(problem)
     check_cancel()
     t_build = time.perf_counter() - t0
-    channels = [_Channel(d, c, params) for c in range(problem.channels)]
+    rho0 = sigma0 = None
+    if coarse is not None:
+        up = upsample_texels(coarse.texture, problem.texture.size).reshape(-1, problem.channels)[d.texel_index]
+        rho0 = np.where(np.isfinite(up), up, d.rho0)
+        sigma0 = coarse.sigma
+    channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
+                         None if sigma0 is None else sigma0[:, c]) for c in range(problem.channels)]
     pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
     history, cont_history = [], []
     it = 0
@@ -352,7 +371,9 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
             "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_unknown.size),
             "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
-            "continuation_energy": cont_history, "domain": d.domain}
+            "continuation_energy": cont_history, "domain": d.domain,
+            "coarse": None if coarse is None else {"size": int(coarse.texture.shape[0]), "iterations": coarse.iterations,
+                                                   "energy": coarse.energy, "info": coarse.info}}
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
 
