@@ -18,6 +18,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 from . import pipeline
 from .core.solver import Cancelled
 from .errors import DelightError
+from .pipeline import DEFAULTS
 
 __all__ = ["DELIGHT_OT_run", "Job", "METHOD_ITEMS", "CAMERA_ITEMS", "set_status", "get_status"]
 
@@ -111,10 +112,10 @@ class DELIGHT_OT_run(bpy.types.Operator):
     images_dir: StringProperty(name="Images Folder", subtype="DIR_PATH",
                                description="Where to find a photo named like its camera, "
                                            "for cameras without a background image")
-    lam: FloatProperty(name="Lambda", default=5.0, min=0.0, soft_max=100.0,
+    lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0,
                        description="Smoothness (total variation) weight")
-    mu: FloatProperty(name="Mu", default=1000.0, min=0.0, description="Cross-view consistency weight (Image)")
-    max_iter: IntProperty(name="Iterations", default=50, min=1, soft_max=500)
+    mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0, description="Cross-view consistency weight (Image)")
+    max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
     working_res: FloatProperty(name="Working Resolution", default=1.0, min=0.001, soft_max=16.0, unit="NONE",
                                description="Photos are downscaled to at most this many megapixels")
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)

@@ -5,6 +5,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from . import previews
+from .pipeline import DEFAULTS
 from .operator import CAMERA_ITEMS, METHOD_ITEMS, DELIGHT_OT_run, get_status
 
 __all__ = ["DelightSettings", "VIEW3D_PT_delight", "operator_settings"]
@@ -25,9 +26,9 @@ class DelightSettings(bpy.types.PropertyGroup):
                                description="Folder with photos named like the cameras, "
                                            "for cameras without a background image")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
-    lam: FloatProperty(name="Lambda", default=5.0, min=0.0, soft_max=100.0)
-    mu: FloatProperty(name="Mu", default=1000.0, min=0.0)
-    max_iter: IntProperty(name="Iterations", default=50, min=1, soft_max=500)
+    lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0)
+    mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0)
+    max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
     working_res: FloatProperty(name="Working MP", default=1.0, min=0.001, soft_max=16.0)
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
     out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//")

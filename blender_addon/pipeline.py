@@ -26,6 +26,9 @@ import numpy as np
 from .core.solver import Cancelled, SolverParams
 from .errors import DelightError
 
+#: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
+DEFAULTS = SolverParams()
+
 __all__ = ["METHODS", "Options", "Prepared", "Computed", "RunReport", "prepare", "compute", "finish", "run",
            "sample_texture"]
 
@@ -75,9 +78,9 @@ class Options:
     camera_names: list | None = None
     images_dir: str | None = None
     selected_only: bool = False
-    lam: float = 5.0
-    mu: float = 1000.0
-    max_iter: int = 50
+    lam: float = DEFAULTS.lam
+    mu: float = DEFAULTS.mu
+    max_iter: int = DEFAULTS.max_iter
     working_res_mp: float = 1.0
     texture_size: int = 1024
     method: str = "texture"

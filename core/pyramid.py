@@ -16,6 +16,10 @@ from .problem import Problem, TextureLayout
 
 __all__ = ["coarsen", "upsample_texels"]
 
+# Below these a level has too little data to say anything about the finer one.
+MIN_SIZE = 32
+MIN_PIXELS = 20_000
+
 
 def _coarsen_layout(layout: TextureLayout) -> TextureLayout:
     n = layout.size // 2
@@ -37,10 +41,10 @@ def coarsen(problem: Problem) -> Problem | None:
 
     The image-domain correspondences are not carried over.
     """
-    if problem.texture is None or problem.texture.size < 16:
+    if problem.texture is None or problem.texture.size < 2 * MIN_SIZE:
         return None
     sub = [np.ascontiguousarray(m[::2, ::2]) for m in problem.masks]
-    if not all(m.any() for m in sub):
+    if not all(m.any() for m in sub) or sum(int(m.sum()) for m in sub) < MIN_PIXELS:
         return None
 
     def half(seq):

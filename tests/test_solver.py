@@ -43,14 +43,17 @@ def test_well_posed_recovery_in_texture_space(varying):
     # Lighting varies across views (section 3, case 2): small lambda, noiseless.
     # Measured 0.028/0.040/0.042 (rho = I: 0.20-0.28). The target is 0.01;
     # the texels straddling albedo edges and the slow rho/sigma valley hold it back.
-    r = solve(varying.problem, SolverParams(domain="texture", lam=0.01, max_iter=80, tol=1e-5))
+    r = solve(varying.problem, SolverParams(domain="texture", lam=0.01, delta=1e-4, varpro=True, levels=1,
+                                            max_iter=80, tol=1e-5))
     rmse = scaled_rmse(r.texture, varying.albedo_texture, r.seen)
     assert np.all(rmse < 0.05), rmse
     assert np.all(rmse < 0.2 * _image_rmse(varying)), rmse
 
 
 def test_fixed_lighting_beats_the_images(fixed):
-    r = solve(fixed.problem, SolverParams(domain="texture", lam=0.1, max_iter=40))
+    # On this sphere (strong directional light, weak TV) only the variable-projection
+    # step moves the solver off rho = I; the defaults (chosen on the renders) stay at 0.22.
+    r = solve(fixed.problem, SolverParams(domain="texture", lam=0.1, delta=1e-4, varpro=True, levels=1, max_iter=40))
     ours = _view_rmse(r, fixed)
     baseline = _image_rmse(fixed)
     # Measured 0.13/0.08/0.12 against 0.24/0.22/0.25 for rho = I.

@@ -184,20 +184,21 @@ def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
         sys.path.remove(os.path.join(ROOT, "blend_fixtures"))
     from blender_addon.core.metrics import scaled_rmse
 
-    make_fixtures.generate("lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8,
-                           texture_size=64)
+    info = make_fixtures.generate("lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8,
+                                  texture_size=64)
+    obj = info["mesh"]["object"]
     blend = tmp_path / "lambert_sky" / "scene.blend"
     gt = read_exr(tmp_path / "lambert_sky" / "albedo_gt.exr")[0]
-    common = ["--object", "Object", "--texture-size", "64"]
+    common = ["--object", obj, "--texture-size", "64"]
     p = run_cli(blend, *common, "--method", "project", "--out", tmp_path / "project")
     assert p.returncode == 0, p.stderr
     p = run_script(blend, *common, "--method", "texture", "--max-iter", "10", "--out", tmp_path / "texture")
     assert p.returncode == 0, p.stderr
     rmse = {}
     for m in ("project", "texture"):
-        est = read_exr(tmp_path / m / "Object_albedo.exr")[0]
+        est = read_exr(tmp_path / m / f"{obj}_albedo.exr")[0]
         seen = (est[..., 3] > 0) & (gt[..., 3] > 0)
         assert seen.sum() > 0.5 * (gt[..., 3] > 0).sum()
         rmse[m] = float(np.mean(scaled_rmse(est[..., :3], gt[..., :3], seen)))
-    # Measured: project 0.223, texture 0.142 (10 iterations).
-    assert rmse["texture"] < 0.8 * rmse["project"], rmse
+    # Measured: project 0.223, texture 0.134 (default levels, 10 iterations at the finest).
+    assert rmse["texture"] < 0.7 * rmse["project"], rmse
