@@ -3,13 +3,28 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["huber", "majorant", "mm_weight"]
+__all__ = ["huber", "huber_inplace", "majorant", "mm_weight"]
 
 
 def huber(x, delta):
     """phi_delta(x): x^2 / (2 delta) where |x| <= delta, |x| - delta / 2 elsewhere."""
     a = np.abs(x)
     return np.where(a <= delta, a * a / (2 * delta), a - delta / 2)
+
+
+def huber_inplace(x, delta):
+    """phi_delta(x) into a new array of x's dtype, with few temporaries (the solver's hot path).
+
+    Uses ``phi(x) = |x| - delta/2 + max(delta - |x|, 0)^2 / (2 delta)``.
+    """
+    a = np.abs(x)
+    t = delta - a
+    np.maximum(t, 0, out=t)
+    t *= t
+    t *= 1.0 / (2 * delta)
+    a -= delta / 2
+    a += t
+    return a
 
 
 def mm_weight(x0, delta):

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .huber import huber, mm_weight
+from .huber import huber_inplace, mm_weight
 from .operators import Discretization, image_domain, texture_domain
 from .pyramid import coarsen, upsample_texels
 from .sh import DIFFUSE, unpack_products
@@ -155,18 +155,25 @@ def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarr
     return out
 
 
-def _channel_energy(d, rho, shade, values_c, s, delta):
-    r = rho[d.obs_unknown] * shade[d.obs_pixel] - values_c[d.obs_pixel]
-    data = float(np.dot(d.obs_weight.astype(np.float64), huber(r.astype(np.float64), delta)))
-    reg = float(np.dot(s, huber((d.B @ rho).astype(np.float64), delta))) if d.B.shape[0] else 0.0
+def _weighted_huber(x, w, delta):
+    """``sum(w * phi_delta(x))``, computed in x's precision and summed in float64."""
+    h = huber_inplace(x, delta)
+    h *= w
+    return float(np.add.reduce(h, dtype=np.float64))
+
+
+def _channel_energy(d, rho, obs_shade, obs_values, s, delta):
+    r = rho[d.obs_unknown] * obs_shade - obs_values
+    data = _weighted_huber(r, d.obs_weight, delta)
+    reg = _weighted_huber(d.B @ rho, s.astype(rho.dtype), delta) if d.B.shape[0] else 0.0
     return data + reg
 
 
 def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu: float, delta: float) -> float:
     """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
     s = d.row_scale(lam, mu).astype(np.float64)
-    return sum(_channel_energy(d, rho[:, c], _shading(d, sigma[:, c]), d.values[:, c], s, delta)
-               for c in range(rho.shape[1]))
+    return sum(_channel_energy(d, rho[:, c], _shading(d, sigma[:, c])[d.obs_pixel], d.values[d.obs_pixel, c],
+                               s, delta) for c in range(rho.shape[1]))
 
 
 def _pcg(matvec, b, x, dinv, iters):
@@ -209,29 +216,35 @@ class _Channel:
         self.mu = params.mu
         self.lam = params.lam
         self._set_lambda(params.lam)
-        self.shade = _shading(d, self.sigma, self.ft)
+        # Gathered once per change: the observations' values and shading.
+        self.obs_values = self.values[d.obs_pixel].astype(self.ft)
+        self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
         self.e = self.energy()
+
+    def _set_sigma(self, sigma, shade):
+        self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
 
     def _set_lambda(self, lam):
         self.lam = lam
         self.s = self.d.row_scale(lam, self.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
 
-    def energy(self, rho=None, shade=None):
+    def energy(self, rho=None, obs_shade=None):
         return _channel_energy(self.d, self.rho if rho is None else rho,
-                               self.shade if shade is None else shade, self.values, self.s, self.delta)
+                               self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s,
+                               self.delta)
 
-    def residual(self, rho, shade):
-        d = self.d
-        return rho[d.obs_unknown] * shade[d.obs_pixel] - self.values[d.obs_pixel]
+    def data_weights(self, rho_o):
+        """beta * the majorant's curvature at the current residuals."""
+        r = rho_o * self.obs_shade - self.obs_values
+        return self.d.obs_weight * mm_weight(r, self.delta).astype(self.ft)
 
     def rho_step(self):
         d = self.d
-        a = self.shade[d.obs_pixel]
-        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(self.ft)
-        diag = np.bincount(d.obs_unknown, weights=w * a * a, minlength=d.n_unknowns).astype(self.ft)
-        rhs = np.bincount(d.obs_unknown, weights=w * a * self.values[d.obs_pixel],
-                          minlength=d.n_unknowns).astype(self.ft)
+        a = self.obs_shade
+        wa = self.data_weights(self.rho[d.obs_unknown]) * a
+        diag = np.bincount(d.obs_unknown, weights=wa * a, minlength=d.n_unknowns).astype(self.ft)
+        rhs = np.bincount(d.obs_unknown, weights=wa * self.obs_values, minlength=d.n_unknowns).astype(self.ft)
         if d.B.shape[0]:
             sw = self.s_ft * mm_weight(d.B @ self.rho, self.delta).astype(self.ft)
             B, BT = d.B, d.BT
@@ -249,15 +262,16 @@ class _Channel:
     def sigma_step(self):
         d = self.d
         rho_o = self.rho[d.obs_unknown]
-        w = d.obs_weight * mm_weight(self.residual(self.rho, self.shade), self.delta).astype(self.ft)
+        w = self.data_weights(rho_o)
         npix = d.nu.shape[0]
         g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
         h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
         sigma = self.sigma.copy()
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            M = unpack_products(g[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
-            b = h[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+            # float32 products (BLAS); the energy check below guards the result.
+            M = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
+            b = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
             if v == 0:
                 # Pin the scale: the constant term of view 0 stays fixed.
                 free = np.array([0, 1, 2, 4, 5, 6, 7, 8])
@@ -266,9 +280,10 @@ class _Channel:
             else:
                 sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
         shade = _shading(d, sigma, self.ft)
-        e = self.energy(shade=shade)
+        e = self.energy(obs_shade=shade[d.obs_pixel])
         if e <= self.e:
-            self.sigma, self.shade, self.e = sigma, shade, e
+            self._set_sigma(sigma, shade)
+            self.e = e
 
     def step(self):
         self.rho_step()
@@ -419,8 +434,8 @@ def _varpro_step(ch: "_Channel"):
     m = d.n_views
     nv = 9 * m
     u = d.obs_unknown
-    a = ch.shade[d.obs_pixel].astype(np.float64)
-    vals = ch.values[d.obs_pixel].astype(np.float64)
+    a = ch.obs_shade.astype(np.float64)
+    vals = ch.obs_values.astype(np.float64)
     rho_o = ch.rho[u].astype(np.float64)
     r = rho_o * a - vals
     w = d.obs_weight * mm_weight(r, ch.delta)
@@ -458,8 +473,9 @@ def _varpro_step(ch: "_Channel"):
         sigma = ch.sigma + t * dsig
         shade = _shading(d, sigma, ch.ft)
         rho = ch.rho + t * drho
-        e = ch.energy(rho=rho, shade=shade)
+        e = ch.energy(rho=rho, obs_shade=shade[d.obs_pixel])
         if e < ch.e:
-            ch.rho, ch.sigma, ch.shade, ch.e = rho, sigma, shade, e
+            ch.rho, ch.e = rho, e
+            ch._set_sigma(sigma, shade)
             return True
     return False

@@ -37,3 +37,10 @@ def test_majorant_is_above_huber_and_touches_at_x0():
 def test_huber_branches():
     d = 0.1
     np.testing.assert_allclose(huber(np.array([0.05, -0.5]), d), [0.05 ** 2 / 0.2, 0.5 - 0.05])
+
+
+def test_inplace_huber_matches_the_definition():
+    from core.huber import huber_inplace
+    x = np.linspace(-0.01, 0.01, 1001)
+    for dt in (np.float64, np.float32):
+        np.testing.assert_allclose(huber_inplace(x.astype(dt), 1e-3), huber(x, 1e-3), rtol=1e-5, atol=1e-9)
