@@ -125,6 +125,7 @@ def main(argv=None):
     ap.add_argument("--pairs", type=float, default=1.5e7, help="correspondences at scale 1 (scaled by scale^2)")
     ap.add_argument("--lam", type=float, default=5.0)
     ap.add_argument("--mu", type=float, default=1000.0)
+    ap.add_argument("--delta", type=float, default=SolverParams.delta)
     ap.add_argument("--max-iter", type=int, default=50)
     ap.add_argument("--rows", nargs="+", default=["reference", "image", "texture"])
     ap.add_argument("--json", help="also write the rows here")
@@ -133,9 +134,10 @@ def main(argv=None):
     rows = []
     for name in a.rows:
         domain = "texture" if name == "texture" else "image"
-        params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, max_iter=a.max_iter)
+        params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, delta=a.delta, max_iter=a.max_iter)
         with mp.get_context("spawn").Pool(1) as pool:
             row = pool.map(run_row, [(name, a.scale, pairs, params)])[0]
+        row.update(lam=a.lam, mu=a.mu, delta=a.delta)
         rows.append(row)
         print(json.dumps(row), flush=True)
     print()
