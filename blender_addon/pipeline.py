@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .core.solver import Cancelled, SolverParams
+from .core.jsonio import json_value
+from .core.sh import SH_BASIS_NAMES
 from .errors import DelightError
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
@@ -35,7 +37,7 @@ __all__ = ["METHODS", "Options", "Prepared", "Computed", "RunReport", "prepare",
 METHODS = ("texture", "image", "project")
 
 #: The basis of the lighting coefficients in lighting.json (world-space normal n).
-SH_BASIS = ["n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1"]
+SH_BASIS = list(SH_BASIS_NAMES)
 
 # Share of the progress bar for each stage.
 _SPAN = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
@@ -338,26 +340,10 @@ def _lighting_json(prepared, computed):
             "views": views}
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer, np.bool_)):
-        return x.item()
-    if x is None or isinstance(x, (str, int, bool)):
-        return x
-    return str(x)
-
-
 def _report_json(prepared, computed, paths, times):
     import bpy
     opt = prepared.options
-    return _jsonable({
+    return json_value({
         "object": prepared.inputs.object_name,
         "uv_map": prepared.inputs.mesh.uv_map,
         "method": opt.method,
@@ -410,7 +396,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
     files = _write.write_outputs(paths, computed.albedo, computed.seen,
                                  views=dict(zip(names, computed.views)),
                                  masks={v.name: b.mask for v, b in zip(inputs.views, prepared.bakes)},
-                                 lighting=_jsonable(_lighting_json(prepared, computed)), report=report,
+                                 lighting=json_value(_lighting_json(prepared, computed)), report=report,
                                  overwrite=opt.overwrite)
     stage(0.6, "material")
     image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)

@@ -15,13 +15,13 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``albedo.exr``
     Texture domain only: the texture, RGBA, 0 where unseen, A = seen texels.
 ``lighting.json``
-    ``{"sh_basis": "[n1,n2,n3,1,n1n2,n1n3,n2n3,n1^2-n2^2,3n3^2-1]",
+    ``{"sh_basis": ["n1", "n2", "n3", "1", "n1*n2", ...],
     "channels": [...], "views": [{"name", "file", "sh": [[9 floats] per
     channel]}]}``.
 ``report.json``
     Parameters, iterations, energy history, solve time and output files.
 
-``<name>`` is the view name made safe as a file name (:func:`safe_file_names`).
+``<name>`` is the view name made safe as a file name (:func:`core.names.unique_names`).
 Files are written atomically, and only after the solver succeeded. Bad input
 (a missing or invalid bundle, bad options) ends with one ``error:`` line on
 stderr and exit status 2; a failed write ends with status 1.
@@ -33,7 +33,6 @@ import dataclasses
 import json
 import math
 import os
-import re
 import sys
 import time
 
@@ -42,67 +41,25 @@ import numpy as np
 from .atomic import atomic_path
 from .bundle import load_bundle
 from .exr import write_exr
+from .jsonio import json_value
+from .names import unique_names
+from .sh import SH_BASIS_NAMES
 from .solver import SolverParams, solve
 
-__all__ = ["main", "build_parser", "safe_file_names", "write_outputs", "SH_BASIS"]
+__all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
 
-SH_BASIS = "[n1,n2,n3,1,n1n2,n1n3,n2n3,n1^2-n2^2,3n3^2-1]"
+SH_BASIS = list(SH_BASIS_NAMES)
 
-_WINDOWS_RESERVED = {"con", "prn", "aux", "nul", *(f"com{i}" for i in range(1, 10)),
-                     *(f"lpt{i}" for i in range(1, 10))}
-_MAX_NAME = 100
 
 
 class _InputError(Exception):
     """Bad input: reported as one line, exit status 2."""
 
 
-def safe_file_names(names) -> list[str]:
-    """File-name stems for view names: no path parts, unique, portable.
-
-    Characters other than ASCII letters, digits, ``.``, ``-`` and ``_`` become
-    ``_``; leading dots are dropped (no ``..``, no hidden files); Windows
-    device names get a ``_`` prefix; empty names become ``view<i>``. Names
-    that clash (ignoring case, for case-insensitive file systems) get
-    ``_2``, ``_3``, ... appended.
-    """
-    out, used = [], set()
-    for i, name in enumerate(names):
-        stem = re.sub(r"[^\w.\-]", "_", str(name), flags=re.ASCII).lstrip(".")[:_MAX_NAME].rstrip(". ")
-        if not stem:
-            stem = f"view{i}"
-        if stem.split(".")[0].lower() in _WINDOWS_RESERVED:
-            stem = "_" + stem
-        candidate, k = stem, 1
-        while candidate.lower() in used:
-            k += 1
-            candidate = f"{stem}_{k}"
-        used.add(candidate.lower())
-        out.append(candidate)
-    return out
-
-
-def _json_value(x):
-    """Plain JSON: numpy to Python, non-finite floats to null."""
-    if isinstance(x, dict):
-        return {str(k): _json_value(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_value(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_value(x.tolist()) if x.size <= 10000 else f"<array {x.dtype} {x.shape}>"
-    if isinstance(x, np.generic):
-        return _json_value(x.item())
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if x is None or isinstance(x, (bool, int, str)):
-        return x
-    return repr(x)
-
-
 def _write_json(path, obj):
     with atomic_path(path, suffix=".json") as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(_json_value(obj), fh, indent=2, allow_nan=False)
+            json.dump(json_value(obj), fh, indent=2, allow_nan=False)
             fh.write("\n")
 
 
@@ -138,7 +95,7 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None) -
             raise ValueError(f"result: view {i} has shape {np.shape(v)}, "
                              f"expected {problem.images[i].shape}")
     os.makedirs(os.path.join(out_dir, "views"), exist_ok=True)
-    stems = safe_file_names(problem.names)
+    stems = unique_names(problem.names)
     files = {"views": [f"views/{s}.exr" for s in stems]}
     for i, rel in enumerate(files["views"]):
         write_exr(os.path.join(out_dir, rel), _rgba(result.views[i], problem.masks[i]))

@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sh_basis", "sh_products", "DIFFUSE"]
+__all__ = ["sh_basis", "sh_products", "DIFFUSE", "SH_BASIS_NAMES"]
+
+#: What each of the 9 coefficients multiplies, for files that record lighting (n: unit world normal).
+SH_BASIS_NAMES = ("n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1")
 
 #: The lighting of the trivial solution: ambient only (eq. sigma_naive).
 DIFFUSE = np.array([0, 0, 0, 1, 0, 0, 0, 0, 0], dtype=np.float64)

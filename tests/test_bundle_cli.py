@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from core.bundle import load_bundle, save_bundle
-from core.cli import SH_BASIS, main, safe_file_names, write_outputs
+from core.cli import SH_BASIS, main, write_outputs
+from core.names import unique_names
 from core.exr import read_exr
 from core.problem import Correspondences, Problem, TextureLayout
 from core.solver import Result, SolverParams
@@ -219,12 +220,12 @@ def test_save_rejects_non_problems_and_keeps_existing_file(tmp_path):
 def test_safe_file_names():
     names = ["../../x", "a/b", "a\\b", "", "..", ".hidden", "CON", "con.jpg", "IMG 01.JPG", "img_01.jpg",
              "Img_01.JPG", "ok-1.x", "café"]
-    out = safe_file_names(names)
-    assert out == ["_.._x", "a_b", "a_b_2", "view3", "view4", "hidden", "_CON", "_con.jpg",
+    out = unique_names(names)
+    assert out == ["_._.._x", "a_b", "a_b_2", "unnamed", "_.", "_hidden", "_CON", "_con.jpg",
                    "IMG_01.JPG", "img_01.jpg_2", "Img_01.JPG_3", "ok-1.x", "caf_"]
     assert len({n.lower() for n in out}) == len(out)
     assert all(os.path.basename(n) == n and not n.startswith(".") for n in out)
-    assert safe_file_names(["x" * 300])[0] == "x" * 100
+    assert unique_names(["x" * 300])[0] == "x" * 100
 
 
 # ---------------------------------------------------------------- outputs
@@ -254,9 +255,9 @@ def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
     written = sorted(os.path.relpath(os.path.join(d, f), tmp_path)
                      for d, _, fs in os.walk(tmp_path) for f in fs)
     assert written == sorted(["run/out/albedo.exr", "run/out/lighting.json", "run/out/report.json",
-                              "run/out/views/_.._x.exr", "run/out/views/a_b.exr",
+                              "run/out/views/_._.._x.exr", "run/out/views/a_b.exr",
                               "run/out/views/A_B_2.exr"])
-    assert files["views"] == ["views/_.._x.exr", "views/a_b.exr", "views/A_B_2.exr"]
+    assert files["views"] == ["views/_._.._x.exr", "views/a_b.exr", "views/A_B_2.exr"]
 
     for i, rel in enumerate(files["views"]):
         rgba, ch = read_exr(out / rel)
@@ -272,7 +273,7 @@ def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
     assert not rgba[~result.seen, :3].any()
 
     light = json.loads((out / "lighting.json").read_text())
-    assert light["sh_basis"] == SH_BASIS == "[n1,n2,n3,1,n1n2,n1n3,n2n3,n1^2-n2^2,3n3^2-1]"
+    assert light["sh_basis"] == SH_BASIS == ["n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1"]
     assert [v["name"] for v in light["views"]] == ["../../x", "a/b", "A/B"]
     assert [v["file"] for v in light["views"]] == files["views"]
     np.testing.assert_array_equal(np.array([v["sh"] for v in light["views"]]), result.sigma)
@@ -357,7 +358,7 @@ def test_solve_end_to_end(tmp_path, capsys, domain):
     assert status == 0
     assert "%]" in capsys.readouterr().err  # progress went to stderr
 
-    names = ["left", "_.._x", "left_2"]
+    names = ["left", "_._.._x", "left_2"]
     assert sorted(os.listdir(out / "views")) == sorted(f"{n}.exr" for n in names)
     for i, n in enumerate(names):
         rgba, ch = read_exr(out / "views" / f"{n}.exr")
