@@ -127,14 +127,19 @@ def main(argv=None):
     ap.add_argument("--mu", type=float, default=1000.0)
     ap.add_argument("--delta", type=float, default=SolverParams.delta)
     ap.add_argument("--max-iter", type=int, default=50)
-    ap.add_argument("--rows", nargs="+", default=["reference", "image", "texture"])
+    ap.add_argument("--rows", nargs="+", default=["reference", "image", "texture", "texture@5"],
+                    help="reference, image, texture; texture@K caps the finest level at K iterations")
     ap.add_argument("--json", help="also write the rows here")
     a = ap.parse_args(argv)
     pairs = int(a.pairs * a.scale ** 2)
     rows = []
     for name in a.rows:
-        domain = "texture" if name == "texture" else "image"
-        params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, delta=a.delta, max_iter=a.max_iter)
+        # "texture@5": the texture row with at most 5 iterations at the finest level.
+        base, _, iters = name.partition("@")
+        domain = "texture" if base == "texture" else "image"
+        max_iter = int(iters) if iters else a.max_iter
+        params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, delta=a.delta, max_iter=max_iter,
+                              min_iter=min(SolverParams.min_iter, max_iter))
         with mp.get_context("spawn").Pool(1) as pool:
             row = pool.map(run_row, [(name, a.scale, pairs, params)])[0]
         row.update(lam=a.lam, mu=a.mu, delta=a.delta)
