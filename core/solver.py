@@ -165,7 +165,7 @@ def _weighted_huber(x, w, delta):
 def _channel_energy(d, rho, obs_shade, obs_values, s, delta):
     r = rho[d.obs_unknown] * obs_shade - obs_values
     data = _weighted_huber(r, d.obs_weight, delta)
-    reg = _weighted_huber(d.B @ rho, s.astype(rho.dtype), delta) if d.B.shape[0] else 0.0
+    reg = _weighted_huber(d.B @ rho, s.astype(rho.dtype, copy=False), delta) if d.B.shape[0] else 0.0
     return data + reg
 
 
@@ -213,9 +213,8 @@ class _Channel:
         self.delta = params.delta
         self.cg_iter = params.cg_iter
         self.varpro = params.varpro and d.domain == "texture"
-        self.mu = params.mu
-        self.lam = params.lam
-        self._set_lambda(params.lam)
+        self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
+        self.s_ft = self.s.astype(self.ft)
         # Gathered once per change: the observations' values and shading.
         self.obs_values = self.values[d.obs_pixel].astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
@@ -224,14 +223,9 @@ class _Channel:
     def _set_sigma(self, sigma, shade):
         self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
 
-    def _set_lambda(self, lam):
-        self.lam = lam
-        self.s = self.d.row_scale(lam, self.mu).astype(np.float64)
-        self.s_ft = self.s.astype(self.ft)
-
     def energy(self, rho=None, obs_shade=None):
         return _channel_energy(self.d, self.rho if rho is None else rho,
-                               self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s,
+                               self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s_ft,
                                self.delta)
 
     def data_weights(self, rho_o):
