@@ -315,16 +315,17 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             raise Cancelled("cancelled by the user")
 
     coarse = None
+    base = 0.0  # of the progress bar, used by the coarse levels
     if params.domain == "texture" and params.levels > 1:
         smaller = coarsen(problem)
         if smaller is not None:
-            share = 0.3  # of the progress bar
+            base = 0.3
             sub = replace(params, levels=params.levels - 1, max_iter=params.coarse_iter,
                           min_iter=min(params.min_iter, params.coarse_iter))
             coarse = solve(smaller, sub, cancel=cancel,
                            progress=None if progress is None else
-                           (lambda f, msg: progress(share * f, f"coarse level {smaller.texture.size}: {msg}")))
-            report(0.0 if coarse is None else 0.3, f"building the {params.domain}-domain problem")
+                           (lambda f, msg: progress(base * f, f"coarse level {smaller.texture.size}: {msg}")))
+    report(base, f"building the {params.domain}-domain problem")
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
     else:
@@ -347,7 +348,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
             it += 1
-            report(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
+            report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
             prev, cur = history[-2], history[-1]
             n_main = len(history) - 1
             if n_main >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):

@@ -123,3 +123,13 @@ def test_cancel_and_progress(varying):
 def test_bad_params(varying, bad):
     with pytest.raises(ValueError):
         solve(varying.problem, SolverParams(**bad))
+
+
+def test_progress_moves_forward_through_the_levels():
+    scene = sphere_scene(n_views=4, height=240, width=320, texture_size=128, seed=7)
+    seen = []
+    solve(scene.problem, SolverParams(levels=3, coarse_iter=3, max_iter=3, min_iter=3),
+          progress=lambda f, m: seen.append((f, m)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions), seen
+    assert any("coarse level" in m for _, m in seen) and fractions[-1] == 1.0
