@@ -1,5 +1,4 @@
 """Tests for core.uvlayout: texel convention, UV rasterisation, seam pairs."""
-import time
 
 import numpy as np
 import pytest
@@ -220,14 +219,12 @@ def test_no_seam_pairs_without_seams():
     assert layout.seam_pairs.shape == (0, 2)
 
 
-def test_sphere_2048_is_fast_and_sane():
+def test_sphere_2048_is_sane():
+    # Speed is a benchmark's business, not a test's (measured 1.1-1.9 s for this mesh on 2 cores).
     tri_uv, tri_pos, tri_vert = uv_sphere(128, 80)     # 20480 triangles
     assert tri_uv.shape[0] == 20480
     n = 2048
-    t0 = time.perf_counter()
     layout = texture_layout(tri_uv, tri_pos, tri_vert, n)
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 10.0, f"texture_layout took {elapsed:.1f} s"
     inside = layout.inside
     # The island spans [0.01, 0.99]^2 (plus half a texel of conservative border).
     lo, hi = int(np.floor(0.01 * n - 0.5)), int(np.ceil(0.99 * n - 0.5))
