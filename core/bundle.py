@@ -70,6 +70,7 @@ import zipfile
 import numpy as np
 
 from .atomic import atomic_path
+from .files import read_magic
 from .problem import Correspondences, Problem, TextureLayout
 
 __all__ = ["FORMAT", "VERSION", "save_bundle", "load_bundle"]
@@ -131,13 +132,7 @@ def load_bundle(path) -> Problem:
         invalid; the message names the file and the key or view.
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"bundle not found: {path}")
-    if not os.path.isfile(path):
-        raise ValueError(f"bundle {path}: not a file")
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
-    if magic[:2] != b"PK":
+    if read_magic(path, 2, "bundle") != b"PK":
         raise ValueError(f"bundle {path}: not an .npz archive")
     try:
         with np.load(path, allow_pickle=False) as z:

@@ -19,6 +19,7 @@ import numpy as np
 import OpenEXR
 
 from .atomic import atomic_path
+from .files import read_magic
 
 __all__ = ["read_exr", "write_exr", "exr_parts"]
 
@@ -28,13 +29,7 @@ _FIRST = ("R", "G", "B", "A")
 
 def _open(path, header_only=False):
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"EXR file not found: {path}")
-    if not os.path.isfile(path):
-        raise ValueError(f"not a file: {path}")
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
-    if magic != _MAGIC:
+    if read_magic(path, 4, "EXR file") != _MAGIC:
         raise ValueError(f"not an OpenEXR file: {path}")
     try:
         return OpenEXR.File(path, separate_channels=True, header_only=header_only)
