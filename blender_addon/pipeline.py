@@ -235,19 +235,15 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Bilinear lookup of an (N, N, C) texture (row 0 at v = 1) at (H, W, 2) uv; NaN outside ``mask``."""
+    from .core.bilinear import clamped_corners
     from .core.uvlayout import texel_of_uv
 
     n = texture.shape[0]
-    tex = np.nan_to_num(np.asarray(texture, dtype=np.float32))
-    out = np.full(uv.shape[:2] + (tex.shape[2],), np.nan, dtype=np.float32)
+    tex = np.nan_to_num(np.asarray(texture, dtype=np.float32)).reshape(n * n, -1)
+    out = np.full(uv.shape[:2] + (tex.shape[1],), np.nan, dtype=np.float32)
     y, x = texel_of_uv(uv[mask], n)
-    x, y = np.clip(x, 0, n - 1), np.clip(y, 0, n - 1)
-    x0 = np.minimum(np.floor(x).astype(np.intp), max(n - 2, 0))
-    y0 = np.minimum(np.floor(y).astype(np.intp), max(n - 2, 0))
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x1, y1 = np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
-    out[mask] = ((1 - fy) * ((1 - fx) * tex[y0, x0] + fx * tex[y0, x1])
-                 + fy * ((1 - fx) * tex[y1, x0] + fx * tex[y1, x1]))
+    idx, wts = clamped_corners(np.clip(x, 0, n - 1), np.clip(y, 0, n - 1), n, n)
+    out[mask] = np.einsum("kj,kjc->kc", wts, tex[idx])
     return out
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bilinear import clamped_corners
 from .problem import Correspondences
 
 __all__ = ["find_correspondences", "neighbour_views"]
@@ -46,18 +47,6 @@ def neighbour_views(cameras, positions, masks, neighbours):
         order = np.argsort(-cos, kind="stable")
         out.append([int(b) for b in order[:max(0, min(neighbours, m - 1))]])
     return out
-
-
-def _bilinear_setup(xy, w, h):
-    """Corner indices and weights of bilinear lookups at ``xy`` (all inside the grid)."""
-    x, y = xy[:, 0], xy[:, 1]
-    x0 = np.clip(np.floor(x).astype(np.intp), 0, max(w - 2, 0))
-    y0 = np.clip(np.floor(y).astype(np.intp), 0, max(h - 2, 0))
-    fx, fy = x - x0, y - y0
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    idx = np.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], axis=1)
-    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
-    return idx, wts
 
 
 def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000, depth_tol=0.01,
@@ -133,7 +122,7 @@ def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000
             if not ok.any():
                 continue
             sel = np.flatnonzero(ok)
-            idx, wts = _bilinear_setup(xy[sel], w, h)
+            idx, wts = clamped_corners(xy[sel, 0], xy[sel, 1], w, h)
             inside = flat_m[b][idx].all(axis=1)
             sel, idx, wts = sel[inside], idx[inside], wts[inside]
             zb = np.einsum("ij,ij->i", depth[b][idx], wts)

@@ -30,6 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .problem import Problem
+from .bilinear import masked_corners
 from .sh import sh_basis, sh_products
 from .uvlayout import texel_of_uv
 
@@ -131,32 +132,6 @@ def _grid_edges(keep: np.ndarray):
     return a, b, horizontal
 
 
-def _bilinear(x, y, valid):
-    """Four corners (flat indices into a (H, W) grid) and weights of continuous (x, y).
-
-    Corners outside the grid or where ``valid`` is False get weight 0; the rest
-    are renormalised. Returns ``corners (K, 4)``, ``weights (K, 4)``.
-    """
-    h, w = valid.shape
-    x0 = np.floor(x).astype(np.intp)
-    y0 = np.floor(y).astype(np.intp)
-    fx = (x - x0).astype(np.float32)
-    fy = (y - y0).astype(np.float32)
-    xs = np.stack([x0, x0 + 1, x0, x0 + 1], axis=1)
-    ys = np.stack([y0, y0, y0 + 1, y0 + 1], axis=1)
-    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
-    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
-    xs = np.clip(xs, 0, w - 1)
-    ys = np.clip(ys, 0, h - 1)
-    flat = ys * w + xs
-    ok = inside & valid.ravel()[flat]
-    wts = np.where(ok, wts, 0)
-    total = wts.sum(axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        wts = np.where(total > 0, wts / total, 0).astype(np.float32)
-    return flat, wts
-
-
 def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Discretization:
     """The paper's parameterisation: one unknown per masked pixel of each view.
 
@@ -192,7 +167,7 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         keep = np.zeros(len(corr), dtype=bool)
         for j in np.unique(corr.view_b):
             sel = np.flatnonzero(corr.view_b == j)
-            flat, wts = _bilinear(corr.xy_b[sel, 0], corr.xy_b[sel, 1], problem.masks[j])
+            flat, wts = masked_corners(corr.xy_b[sel, 0], corr.xy_b[sel, 1], problem.masks[j])
             full = (flat >= 0).all(axis=1) & problem.masks[j].ravel()[flat].all(axis=1)
             ub[sel] = lut[j][flat]
             wb[sel] = wts
@@ -240,7 +215,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0) -> Discretizat
     for i in range(problem.n_views):
         mask = problem.masks[i]
         row, col = texel_of_uv(problem.uv[i][mask], size)
-        flat, wts = _bilinear(col, row, inside)
+        flat, wts = masked_corners(col, row, inside)
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), 4)
