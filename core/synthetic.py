@@ -14,6 +14,7 @@ import numpy as np
 from .camera import Camera
 from .problem import Problem, TextureLayout
 from .sh import sh_basis
+from .uvlayout import bilinear_texels
 
 __all__ = ["SyntheticScene", "sphere_scene"]
 
@@ -83,18 +84,27 @@ def _lighting(rng, n_views, channels, varying):
 
 def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_cells=12,
                  varying_light=False, noise=0.0, seed=0, distance=3.5,
-                 smooth_albedo=False) -> SyntheticScene:
+                 smooth_albedo=False, textured=False) -> SyntheticScene:
     """A unit sphere with a piecewise-constant albedo, seen by ``n_views`` cameras on two rings.
 
     The albedo is defined on the sphere (nearest of ``n_cells`` random cell
     centres, or a smooth blend of their colours), so the ground truth is exact
-    per pixel and per texel.
+    per pixel and per texel. With ``textured``, the sphere instead carries
+    that albedo as an image texture (its values at the texel centres) and
+    each pixel sees the texture's bilinear interpolation at its UV, as a
+    renderer samples an image texture; the texels are then the exact truth.
     """
     rng = np.random.default_rng(seed)
+    N = texture_size
+    rows, cols = np.mgrid[0:N, 0:N]
+    lon = ((cols + 0.5) / N - 0.5) * 2 * np.pi
+    lat = (0.5 - (rows + 0.5) / N) * np.pi
+    tex_pos = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
     cells = rng.standard_normal((n_cells, 3))
     cells /= np.linalg.norm(cells, axis=1, keepdims=True)
     colors = rng.uniform(0.15, 0.9, size=(n_cells, channels))
     sigma = _lighting(rng, n_views, channels, varying_light)
+    texture_albedo = _albedo(tex_pos, cells, colors, smooth_albedo)
     f = 0.9 * min(width, height) / 2 / np.tan(np.arcsin(1 / distance))
     K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
     images, masks, normals, uvs, weights, cams, gts, poss = [], [], [], [], [], [], [], []
@@ -112,7 +122,13 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
         p = eye + tt[..., None] * d
         p[~mask] = np.nan
         n = np.where(mask[..., None], p, 0)
-        alb = _albedo(p, cells, colors, smooth_albedo)
+        uv = np.where(mask[..., None], _sphere_uv(np.nan_to_num(p)), 0)
+        if textured:
+            flat, wts = bilinear_texels(uv[mask], np.ones((N, N), bool))
+            alb = np.full(mask.shape + (channels,), np.nan)
+            alb[mask] = np.einsum("pk,pkc->pc", wts, texture_albedo.reshape(N * N, -1)[flat])
+        else:
+            alb = _albedo(p, cells, colors, smooth_albedo)
         shade = np.einsum("hwk,ck->hwc", sh_basis(n, np.float64), sigma[v])
         img = np.where(mask[..., None], alb * shade, 0)
         if noise:
@@ -120,16 +136,11 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
         images.append(img.astype(np.float32))
         masks.append(mask)
         normals.append(n.astype(np.float32))
-        uvs.append(np.where(mask[..., None], _sphere_uv(np.nan_to_num(p)), 0).astype(np.float32))
+        uvs.append(uv.astype(np.float32))
         weights.append(np.clip(-(n * d).sum(-1), 0, 1).astype(np.float32))
         cams.append(cam)
         gts.append(alb.astype(np.float32))
         poss.append(p)
-    N = texture_size
-    rows, cols = np.mgrid[0:N, 0:N]
-    lon = ((cols + 0.5) / N - 0.5) * 2 * np.pi
-    lat = (0.5 - (rows + 0.5) / N) * np.pi
-    tex_pos = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
     r = np.arange(N)
     seam = np.concatenate([
         np.stack([r * N, r * N + N - 1], axis=1),                       # lon = -pi <-> +pi
@@ -139,4 +150,4 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
     layout = TextureLayout(tex_pos, seam)
     problem = Problem(images, masks, normals, uv=uvs, texture=layout, view_weight=weights,
                       names=[f"cam{v:02d}" for v in range(n_views)])
-    return SyntheticScene(problem, cams, gts, _albedo(tex_pos, cells, colors, smooth_albedo).astype(np.float32), sigma, poss)
+    return SyntheticScene(problem, cams, gts, texture_albedo.astype(np.float32), sigma, poss)

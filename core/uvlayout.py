@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bilinear import masked_corners
+
 from .problem import TextureLayout
 
 __all__ = ["texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout"]
@@ -96,36 +98,25 @@ def texel_index(uv, n):
     return np.where(ok, r * n + c, -1)
 
 
-def bilinear_texels(uv, n):
-    """The four texels and bilinear weights around each UV point.
+def bilinear_texels(uv, valid):
+    """The four texels around each UV point and their bilinear weights, as a renderer samples a texture.
 
     Parameters
     ----------
-    uv : (..., 2) array_like
-    n : int
+    uv : (K, 2) array_like
+    valid : (N, N) bool array
+        Texels that may be used (for example the UV islands); the size N is its shape.
 
     Returns
     -------
-    index : (..., 4) intp array
-        Flat texel indices, -1 for neighbours outside the texture.
-    weight : (..., 4) float64 array
-        Bilinear weights, 0 for neighbours outside the texture, so they sum
-        to less than 1 near the texture's border (renormalise if needed).
+    index : (K, 4) intp array
+        Flat texel indices (clamped into the texture).
+    weight : (K, 4) float32 array
+        Bilinear weights; texels outside the texture or not ``valid`` get 0
+        and the rest are renormalised to sum to 1 (all 0 if none is valid).
     """
-    row, col = texel_of_uv(uv, n)
-    r0 = np.floor(row)
-    c0 = np.floor(col)
-    fr = row - r0
-    fc = col - c0
-    idx, wts = [], []
-    for dr, dc, w in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
-                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
-        r = r0 + dr
-        c = c0 + dc
-        ok = (r >= 0) & (r < n) & (c >= 0) & (c < n)
-        idx.append(np.where(ok, np.where(ok, r, 0) * n + np.where(ok, c, 0), -1).astype(np.intp))
-        wts.append(np.where(ok, w, 0.0))
-    return np.stack(idx, axis=-1), np.stack(wts, axis=-1)
+    row, col = texel_of_uv(uv, valid.shape[0])
+    return masked_corners(col, row, valid)
 
 
 def _check_mesh(tri_uv, tri_pos, tri_vert):

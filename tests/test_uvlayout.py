@@ -83,16 +83,22 @@ def test_bilinear_texels_interpolate_linear_function():
     n = 16
     rng = np.random.default_rng(1)
     uv = rng.uniform(1.0 / n, 1 - 1.0 / n, (100, 2))    # away from the border
-    idx, w = bilinear_texels(uv, n)
+    idx, w = bilinear_texels(uv, np.ones((n, n), bool))
     r, c = np.divmod(np.arange(n * n), n)
     centre_uv = uv_of_texel(r, c, n)
     f = 3 * centre_uv[:, 0] - 2 * centre_uv[:, 1]
-    np.testing.assert_allclose(w.sum(axis=1), 1, atol=1e-12)
-    np.testing.assert_allclose((f[idx] * w).sum(axis=1), 3 * uv[:, 0] - 2 * uv[:, 1], atol=1e-12)
-    # At the border, outside neighbours get index -1 and weight 0.
-    idx, w = bilinear_texels([[0.1 / n, 0.5 + 0.25 / n]], n)    # col -0.4
-    assert np.sum(idx[0] == -1) == 2 and np.all(w[0][idx[0] == -1] == 0)
-    np.testing.assert_allclose(w[0].sum(), 0.6, atol=1e-12)
+    np.testing.assert_allclose(w.sum(axis=1), 1, atol=1e-6)
+    np.testing.assert_allclose((f[idx] * w).sum(axis=1), 3 * uv[:, 0] - 2 * uv[:, 1], atol=1e-5)
+    # At the border, neighbours outside the texture get weight 0 and the rest are renormalised.
+    idx, w = bilinear_texels([[0.1 / n, 0.5 + 0.25 / n]], np.ones((n, n), bool))    # col -0.4
+    assert np.sum(w[0] == 0) == 2 and np.all(idx[0] >= 0)
+    np.testing.assert_allclose(w[0].sum(), 1, atol=1e-6)
+    # Texels that are not valid get weight 0 too; none valid gives all zeros.
+    valid = np.ones((n, n), bool)
+    valid[:, 0] = False
+    idx, w = bilinear_texels([[1.0 / n, 0.5 + 0.25 / n]], valid)    # between columns 0 and 1
+    assert np.all(w[0][idx[0] % n == 0] == 0) and np.isclose(w[0].sum(), 1)
+    assert np.all(bilinear_texels([[0.5, 0.5]], np.zeros((n, n), bool))[1] == 0)
 
 
 def test_bad_size_raises():
@@ -150,8 +156,8 @@ def test_bilinear_lookups_inside_triangles_have_data():
     rng = np.random.default_rng(2)
     bary = rng.dirichlet([1, 1, 1], size=(tri_uv.shape[0], 200))
     pts = np.einsum("tkj,tji->tki", bary, tri_uv).reshape(-1, 2)
-    idx, w = bilinear_texels(pts, n)
-    used = idx[w > 1e-9]
+    idx, w = bilinear_texels(pts, np.ones((n, n), bool))
+    used = idx[w > 1e-6]
     assert np.all(used >= 0) and layout.inside.ravel()[used].all()
     # ...and the islands stay apart: the gutter between faces is not filled.
     assert not layout.inside.all()
