@@ -129,8 +129,9 @@ class Result:
     views : list of (H, W, C) float32 arrays
         Reflectance seen through each view, NaN outside its mask.
     energy : list of float
-        Energy at the finest level, before iteration 1 and after each
-        iteration (before the final rescaling); coarse levels are in ``info``.
+        Energy at the finest level, before iteration 1 (at the warm start
+        when there are coarse levels) and after each iteration (before the
+        final rescaling); coarse levels are in ``info``.
     iterations : int
         Outer iterations done at the finest level.
     texture : (N, N, C) float32 array or None
