@@ -1,10 +1,11 @@
-"""Coarser copies of a texture-domain problem, for coarse-to-fine solving.
+"""Coarser copies of a problem, for coarse-to-fine solving.
 
 Halving the texture and taking every other photo pixel keeps about as many
 pixels per texel, so a coarse level costs a quarter of the fine one per
 iteration, and TV spreads information twice as far per iteration. Pixels are
 subsampled, not averaged: averaging UVs or normals across a seam or a
-silhouette would invent surface that does not exist.
+silhouette would invent surface that does not exist. The image-domain
+correspondences whose source pixel survives are kept, in coarse coordinates.
 """
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ import warnings
 
 import numpy as np
 
-from .problem import Problem, TextureLayout
+from .problem import Correspondences, Problem, TextureLayout
 
-__all__ = ["coarsen", "upsample_texels"]
+__all__ = ["coarsen", "upsample_pixels", "upsample_texels"]
 
 # Below these a level has too little data to say anything about the finer one.
 MIN_SIZE = 32
@@ -36,12 +37,46 @@ def _coarsen_layout(layout: TextureLayout) -> TextureLayout:
     return TextureLayout(pos, coarse)
 
 
-def coarsen(problem: Problem) -> Problem | None:
-    """The problem at half the texture size and every other pixel; None when too small to coarsen.
+def _coarsen_correspondences(corr: Correspondences | None, fine: list, coarse: list) -> Correspondences | None:
+    """The pairs whose source pixel is on the coarse grid, in coarse pixel coordinates.
 
-    The image-domain correspondences are not carried over.
+    Coarse pixel ``(r, c)`` is fine pixel ``(2r, 2c)``; with pixel centres at
+    integer coordinates, a fine position ``(x, y)`` is ``(x / 2, y / 2)`` on the
+    coarse grid. Pairs that land outside the coarse image are dropped.
     """
-    if problem.texture is None or problem.texture.size < 2 * MIN_SIZE:
+    if corr is None:
+        return None
+    wf = np.array([m.shape[1] for m in fine])
+    hc = np.array([m.shape[0] for m in coarse])
+    wc = np.array([m.shape[1] for m in coarse])
+    r, c = np.divmod(corr.pixel_a, wf[corr.view_a])
+    xy = corr.xy_b * 0.5
+    vb = corr.view_b
+    keep = (r % 2 == 0) & (c % 2 == 0)
+    keep &= (xy[:, 0] >= -0.5) & (xy[:, 1] >= -0.5) & (xy[:, 0] <= wc[vb] - 0.5) & (xy[:, 1] <= hc[vb] - 0.5)
+    va = corr.view_a[keep]
+    return Correspondences(view_a=va, pixel_a=(r[keep] // 2) * wc[va] + c[keep] // 2, view_b=vb[keep],
+                           xy_b=xy[keep], weight=corr.weight[keep])
+
+
+def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
+    """The problem at every other pixel (and half the texture size); None when too small to coarsen.
+
+    Parameters
+    ----------
+    problem : Problem
+    texture : bool
+        Coarsen the texture layout too. False drops it (the image domain does
+        not need it), and then its size does not limit the coarsening.
+
+    Returns
+    -------
+    Problem or None
+        None when a mask would be empty, the pixels would be fewer than
+        ``MIN_PIXELS``, or the texture smaller than ``MIN_SIZE``.
+    """
+    layout = problem.texture if texture else None
+    if layout is not None and layout.size < 2 * MIN_SIZE:
         return None
     sub = [np.ascontiguousarray(m[::2, ::2]) for m in problem.masks]
     if not all(m.any() for m in sub) or sum(int(m.sum()) for m in sub) < MIN_PIXELS:
@@ -50,12 +85,23 @@ def coarsen(problem: Problem) -> Problem | None:
     def half(seq):
         return None if seq is None else [np.ascontiguousarray(a[::2, ::2]) for a in seq]
 
-    return Problem(half(problem.images), sub, half(problem.normals), uv=half(problem.uv),
-                   texture=_coarsen_layout(problem.texture), view_weight=half(problem.view_weight),
-                   names=list(problem.names))
+    return Problem(half(problem.images), sub, half(problem.normals),
+                   correspondences=_coarsen_correspondences(problem.correspondences, problem.masks, sub),
+                   uv=half(problem.uv), texture=None if layout is None else _coarsen_layout(layout),
+                   view_weight=half(problem.view_weight), names=list(problem.names))
 
 
 def upsample_texels(coarse: np.ndarray, size: int) -> np.ndarray:
     """Nearest-parent upsampling of a ``(n, n, C)`` texture to ``(size, size, C)`` (NaN stays NaN)."""
     idx = np.minimum(np.arange(size) // 2, coarse.shape[0] - 1)
     return coarse[idx][:, idx]
+
+
+def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Nearest-parent values of a coarse ``(h, w, C)`` view map at the fine mask's pixels.
+
+    Fine pixel ``(r, c)`` takes coarse ``(r // 2, c // 2)``; returns ``(mask.sum(), C)``,
+    NaN where the parent is NaN (outside the coarse mask).
+    """
+    r, c = np.nonzero(mask)
+    return coarse[r // 2, c // 2]

@@ -31,7 +31,7 @@ Defaults were chosen by albedo RMSE against the ground truth of the rendered
 fixtures (README, "What we measured about the solver"), not by energy:
 delta = 1e-3 (1e-4 leaves rho = I nearly a fixed point), mu = 10 with
 per-pixel normalised correspondences (mu = 1000 turns them into hard
-constraints that flatten the albedo), 4 texture levels.
+constraints that flatten the albedo), 4 levels.
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ import scipy.sparse as sp
 
 from .huber import huber_inplace, mm_weight
 from .operators import Discretization, image_domain, texture_domain
-from .pyramid import coarsen, upsample_texels
+from .pyramid import coarsen, upsample_pixels, upsample_texels
 from .sh import DIFFUSE, unpack_products
 
 __all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
@@ -82,9 +82,11 @@ class SolverParams:
     precision : {"float32", "float64"}
         Working precision of rho and the CG.
     levels, coarse_iter : int
-        Texture domain: solve first on ``levels - 1`` coarser copies (half the
-        texture and every other pixel each), ``coarse_iter`` iterations at most
-        on each, and start each level from the one below.
+        Both domains: solve first on up to ``levels - 1`` coarser copies (every
+        other pixel each, and half the texture in the texture domain; see
+        :func:`core.pyramid.coarsen`), ``coarse_iter`` iterations at most on
+        each, and start each level from the one below (rho upsampled from the
+        nearest parent, sigma as it is).
     threads : int
         Channels solved at once.
     """
@@ -133,8 +135,9 @@ class Result:
     views : list of (H, W, C) float32 arrays
         Reflectance seen through each view, NaN outside its mask.
     energy : list of float
-        Energy at the finest level, before iteration 1 and after each
-        iteration (before the final rescaling); coarse levels are in ``info``.
+        Energy at the finest level, before iteration 1 (at the warm start
+        when there are coarse levels) and after each iteration (before the
+        final rescaling); coarse levels are in ``info``.
     iterations : int
         Outer iterations done at the finest level.
     texture : (N, N, C) float32 array or None
@@ -331,15 +334,17 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
 
     coarse = None
     base = 0.0  # of the progress bar, used by the coarse levels
-    if params.domain == "texture" and params.levels > 1:
-        smaller = coarsen(problem)
+    if params.levels > 1:
+        smaller = coarsen(problem, texture=params.domain == "texture")
         if smaller is not None:
             base = 0.3
             sub = replace(params, levels=params.levels - 1, max_iter=params.coarse_iter,
                           min_iter=min(params.min_iter, params.coarse_iter))
+            label = (f"coarse level {smaller.texture.size}" if params.domain == "texture" else
+                     f"coarse level {smaller.masks[0].shape[1]}x{smaller.masks[0].shape[0]}")
             coarse = solve(smaller, sub, cancel=cancel,
                            progress=None if progress is None else
-                           (lambda f, msg: progress(base * f, f"coarse level {smaller.texture.size}: {msg}")))
+                           (lambda f, msg: progress(base * f, f"{label}: {msg}")))
     report(base, f"building the {params.domain}-domain problem")
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
@@ -349,7 +354,11 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     t_build = time.perf_counter() - t0
     rho0 = sigma0 = None
     if coarse is not None:
-        up = upsample_texels(coarse.texture, problem.texture.size).reshape(-1, problem.channels)[d.texel_index]
+        # rho and sigma both after the coarse level's rescaling, so their product is the coarse one.
+        if d.domain == "texture":
+            up = upsample_texels(coarse.texture, problem.texture.size).reshape(-1, problem.channels)[d.texel_index]
+        else:
+            up = np.concatenate([upsample_pixels(v, m) for v, m in zip(coarse.views, problem.masks)])
         rho0 = np.where(np.isfinite(up), up, d.rho0)
         sigma0 = coarse.sigma
     channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
@@ -386,8 +395,10 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_pixel.size),
             "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
             "domain": d.domain,
-            "coarse": None if coarse is None else {"size": int(coarse.texture.shape[0]), "iterations": coarse.iterations,
-                                                   "energy": coarse.energy, "info": coarse.info}}
+            "coarse": None if coarse is None else {
+                "size": None if coarse.texture is None else int(coarse.texture.shape[0]),
+                "shapes": [v.shape[:2] for v in coarse.views], "iterations": coarse.iterations,
+                "energy": coarse.energy, "info": coarse.info}}
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
 

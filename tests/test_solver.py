@@ -3,6 +3,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from core import pyramid
+from core.correspondences import find_correspondences
 from core.metrics import scaled_rmse
 from core.problem import Correspondences, Problem
 from core.operators import texture_domain
@@ -82,6 +84,29 @@ def test_plain_alternation_stalls_where_gauss_newton_does_not(textured):
     plain = _view_rmse(solve(textured.problem, p), textured)
     joint = _view_rmse(solve(textured.problem, replace(p, gauss_newton=True)), textured)
     assert np.all(joint < 0.5 * plain), (joint, plain)
+
+
+@pytest.mark.parametrize("domain", ["texture", "image"])
+def test_energy_never_increases_after_a_coarse_start(varying, domain, monkeypatch):
+    # The fixture is too small to coarsen by default; let it have one coarse level.
+    monkeypatch.setattr(pyramid, "MIN_PIXELS", 1000)
+    monkeypatch.setattr(pyramid, "MIN_SIZE", 16)
+    p = varying.problem
+    corr = find_correspondences(varying.cameras, varying.positions, p.masks, p.normals, neighbours=3)
+    problem = Problem(p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture,
+                      view_weight=p.view_weight)
+    params = SolverParams(domain=domain, lam=0.5, levels=2, coarse_iter=8, max_iter=12, min_iter=12)
+    r = solve(problem, params)
+    coarse = r.info["coarse"]
+    assert coarse is not None and coarse["iterations"] == 8 and coarse["info"]["coarse"] is None
+    if domain == "image":
+        assert coarse["info"]["n_correspondence_rows"] > 0
+    e = np.asarray(r.energy)
+    assert len(e) == 13
+    assert np.all(np.diff(e) <= 0), np.diff(e)
+    # The history starts from the warm start, not from rho = I.
+    cold = solve(problem, replace(params, levels=1, max_iter=1, min_iter=1))
+    assert e[0] < cold.energy[0]
 
 
 def test_fixed_lighting_beats_the_images(fixed):

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+
+from core import pyramid
+from core.bilinear import masked_corners
+from core.correspondences import find_correspondences
+from core.problem import Correspondences, Problem
+from core.pyramid import coarsen, upsample_pixels
+from core.synthetic import sphere_scene
+
+
+@pytest.fixture(scope="module")
+def scene():
+    sc = sphere_scene(n_views=6, height=120, width=160, texture_size=64, seed=2, distance=2.5)
+    p = sc.problem
+    corr = find_correspondences(sc.cameras, sc.positions, p.masks, p.normals, max_pairs=10**7, neighbours=4)
+    # Each weight names its pair's source pixel, so the test can tell which pairs survived.
+    corr.weight = (corr.view_a * 10**6 + corr.pixel_a + 1).astype(np.float64)
+    problem = Problem(p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture,
+                      view_weight=p.view_weight, names=p.names)
+    return sc, problem
+
+
+def _footprint(pos, mask):
+    """Median distance between horizontally adjacent masked pixels: one pixel on the surface."""
+    both = mask[:, 1:] & mask[:, :-1]
+    return float(np.median(np.linalg.norm(pos[:, 1:] - pos[:, :-1], axis=2)[both]))
+
+
+@pytest.mark.parametrize("texture", [True, False])
+def test_coarse_correspondences_link_the_same_surface_points(scene, monkeypatch, texture):
+    sc, problem = scene
+    monkeypatch.setattr(pyramid, "MIN_PIXELS", 1000)  # this small scene would not be coarsened
+    small = coarsen(problem, texture=texture)
+    assert small is not None and (small.texture is None) != texture
+    fine, corr = problem.correspondences, small.correspondences
+    # Every other pixel in both directions keeps about a quarter of the pairs.
+    assert 0.2 * len(fine) < len(corr) < 0.3 * len(fine), (len(corr), len(fine))
+    pos = [p[::2, ::2] for p in sc.positions]
+    foot = np.median([_footprint(p, m) for p, m in zip(pos, small.masks)])
+    # Source pixel and its weight: coarse (r, c) is fine (2r, 2c) of the same view.
+    w = np.array([m.shape[1] for m in small.masks])[corr.view_a]
+    r, c = np.divmod(corr.pixel_a, w)
+    fine_w = np.array([m.shape[1] for m in problem.masks])[corr.view_a]
+    assert np.array_equal(corr.weight, corr.view_a * 10**6 + 2 * r * fine_w + 2 * c + 1)
+    # The two ends see the same point, within a small part of a coarse pixel, for
+    # the pairs the image domain uses (all 4 bilinear corners inside b's mask).
+    err = np.full(len(corr), np.nan)
+    for b in np.unique(corr.view_b):
+        sel = np.flatnonzero(corr.view_b == b)
+        flat, wts = masked_corners(corr.xy_b[sel, 0], corr.xy_b[sel, 1], small.masks[b])
+        inside = small.masks[b].ravel()[flat].all(axis=1)
+        sel, flat, wts = sel[inside], flat[inside], wts[inside]
+        pb = np.einsum("kj,kjd->kd", wts, pos[b].reshape(-1, 3)[flat])
+        pa = np.stack([pos[a][rr, cc] for a, rr, cc in zip(corr.view_a[sel], r[sel], c[sel])])
+        err[sel] = np.linalg.norm(pa - pb, axis=1) / foot
+    used = np.isfinite(err)
+    assert used.mean() > 0.8, used.mean()
+    err = err[used]
+    # Measured: median 0.04, 90% 0.31, 99% 0.87 (the fine pairs, in fine pixels:
+    # 0.03 / 0.32 / 1.04; the tail is grazing views); pixel corners at integers
+    # instead of centres would give a median of 0.5.
+    q = np.percentile(err, [50, 90, 99])
+    assert q[0] < 0.15 and q[1] < 0.5 and q[2] < 1.2, q
+
+
+def test_coarsen_without_a_texture(scene, monkeypatch):
+    _, problem = scene
+    bare = Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences)
+    monkeypatch.setattr(pyramid, "MIN_SIZE", 10**6)  # no texture limits an image-domain problem
+    monkeypatch.setattr(pyramid, "MIN_PIXELS", 1000)
+    assert coarsen(problem) is None
+    small = coarsen(bare)
+    assert small is not None and small.texture is None and small.uv is None
+    assert [m.shape for m in small.masks] == [(60, 80)] * 6
+    monkeypatch.setattr(pyramid, "MIN_PIXELS", 10**6)
+    assert coarsen(bare) is None
+
+
+def test_upsample_pixels_takes_the_nearest_parent():
+    coarse = np.arange(6, dtype=np.float32).reshape(2, 3, 1)
+    coarse[0, 0] = np.nan
+    mask = np.zeros((4, 5), bool)
+    mask[[0, 1, 3, 3], [2, 1, 4, 0]] = True
+    np.testing.assert_array_equal(upsample_pixels(coarse, mask)[:, 0], [1, np.nan, 3, 5])
