@@ -165,6 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"maximum outer iterations (default {defaults.max_iter})")
     s.add_argument("--delta", type=_positive(float, False), default=defaults.delta, metavar="D",
                    help=f"Huber delta (default {defaults.delta})")
+    s.add_argument("--data-model", choices=("splat", "interpolate"), default=defaults.data_model,
+                   help="texture domain: a pixel splats onto its 4 texels, or sees their bilinear mix as a "
+                        f"renderer does (slower, exact for a textured surface; default {defaults.data_model})")
+    s.add_argument("--gauss-newton", action="store_true",
+                   help="add a joint Gauss-Newton step on reflectance and lighting to each iteration "
+                        "(about 3x slower; helps where lighting varies between views and lambda is small)")
     return parser
 
 
@@ -193,7 +199,7 @@ def _solve(args) -> int:
         raise _InputError(f"bundle {args.bundle}: the texture domain needs a texture layout "
                           "(texel_pos), which the bundle lacks; use --domain image")
     params = SolverParams(domain=domain, lam=args.lam, mu=args.mu, delta=args.delta,
-                          max_iter=args.max_iter)
+                          max_iter=args.max_iter, data_model=args.data_model, gauss_newton=args.gauss_newton)
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     try:

@@ -364,13 +364,15 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
                          None if sigma0 is None else sigma0[:, c]) for c in range(problem.channels)]
     pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
-    history = []
+    history, elapsed = [], []
     it = 0
     try:
         history.append(sum(ch.e for ch in channels))
+        elapsed.append(time.perf_counter() - t0)
         while it < params.max_iter:
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            elapsed.append(time.perf_counter() - t0)
             it += 1
             report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
             prev, cur = history[-2], history[-1]
@@ -394,7 +396,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
             "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_pixel.size),
             "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
-            "domain": d.domain,
+            "domain": d.domain, "elapsed": elapsed,
             "coarse": None if coarse is None else {
                 "size": None if coarse.texture is None else int(coarse.texture.shape[0]),
                 "shapes": [v.shape[:2] for v in coarse.views], "iterations": coarse.iterations,

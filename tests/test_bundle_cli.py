@@ -378,3 +378,15 @@ def test_solve_end_to_end(tmp_path, capsys, domain):
         assert rgba[..., 3].any()
     else:
         assert not (out / "albedo.exr").exists()
+
+
+def test_solve_passes_the_solver_options(tmp_path):
+    bundle = tmp_path / "problem.npz"
+    save_bundle(bundle, make_problem())
+    out = tmp_path / "out"
+    assert main(["solve", str(bundle), "--out", str(out), "--max-iter", "2", "--data-model", "interpolate",
+                 "--gauss-newton"]) == 0
+    params = json.loads((out / "report.json").read_text())["params"]
+    assert params["data_model"] == "interpolate" and params["gauss_newton"] is True
+    rgba, _ = read_exr(out / "albedo.exr")
+    assert np.isfinite(rgba).all() and rgba[..., 3].any()
