@@ -10,7 +10,7 @@ Options::
     --object NAME         the mesh (default: the active object)
     --cameras NAME ...    the cameras (default: all)
     --images DIR          photos named like the cameras, for cameras without one
-    --lambda L  --mu M  --max-iter K   (defaults: core.solver.SolverParams)
+    --lambda L|auto  --mu M  --max-iter K   (lambda: auto; the rest: core.solver.SolverParams)
     --working-res MP      downscale photos to at most MP megapixels (default 1)
     --texture-size N      N x N albedo texture (default 1024)
     --method texture|image|project   (default texture; project = no delighting)
@@ -46,6 +46,7 @@ def script_argv(argv) -> list:
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
+    from .core.cli import lambda_arg
     from .pipeline import DEFAULTS
     p = argparse.ArgumentParser(
         prog="python -m blender_addon" if with_blend else "blender -b SCENE.blend -P blender_addon/cli.py --",
@@ -56,8 +57,9 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     p.add_argument("--object", metavar="NAME", help="the mesh object (default: the active object)")
     p.add_argument("--cameras", metavar="NAME", nargs="+", help="the cameras to use (default: all)")
     p.add_argument("--images", metavar="DIR", help="folder of photos named like the cameras")
-    p.add_argument("--lambda", dest="lam", type=float, default=DEFAULTS.lam, metavar="L",
-                   help=f"TV weight (default {DEFAULTS.lam:g})")
+    p.add_argument("--lambda", dest="lam", type=lambda_arg, default=None, metavar="L",
+                   help="TV weight, or 'auto' (default): 5 when the photos share one lighting, 0.5 when it "
+                        "changes between them (measured on the photos)")
     p.add_argument("--mu", type=float, default=DEFAULTS.mu, metavar="M",
                    help=f"consistency weight, image method (default {DEFAULTS.mu:g})")
     p.add_argument("--max-iter", type=int, default=DEFAULTS.max_iter, metavar="K",

@@ -112,8 +112,11 @@ class DELIGHT_OT_run(bpy.types.Operator):
     images_dir: StringProperty(name="Images Folder", subtype="DIR_PATH",
                                description="Where to find a photo named like its camera, "
                                            "for cameras without a background image")
+    auto_lambda: BoolProperty(name="Auto Lambda", default=True,
+                              description="Pick lambda from how much the lighting changes between the photos "
+                                          "(5 under one lighting, 0.5 when it changes)")
     lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0,
-                       description="Smoothness (total variation) weight")
+                       description="Smoothness (total variation) weight, when Auto Lambda is off")
     mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0, description="Cross-view consistency weight (Image)")
     max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
     working_res: FloatProperty(name="Working Resolution", default=1.0, min=0.001, soft_max=16.0, unit="NONE",
@@ -145,7 +148,8 @@ class DELIGHT_OT_run(bpy.types.Operator):
         return pipeline.Options(
             object_name=self.object_name or None, camera_names=names,
             images_dir=bpy.path.abspath(self.images_dir) if self.images_dir else None,
-            selected_only=self.cameras == "SELECTED", lam=self.lam, mu=self.mu, max_iter=self.max_iter,
+            selected_only=self.cameras == "SELECTED", lam=None if self.auto_lambda else self.lam, mu=self.mu,
+            max_iter=self.max_iter,
             working_res_mp=self.working_res, texture_size=self.texture_size, method=self.method,
             out_dir=bpy.path.abspath(out) if out else None, overwrite=self.overwrite)
 

@@ -26,6 +26,8 @@ class DelightSettings(bpy.types.PropertyGroup):
                                description="Folder with photos named like the cameras, "
                                            "for cameras without a background image")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
+    auto_lambda: BoolProperty(name="Auto Lambda", default=True,
+                              description="Pick lambda from how much the lighting changes between the photos")
     lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0)
     mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0)
     max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
@@ -41,7 +43,8 @@ def operator_settings(settings) -> dict:
         object_name=settings.target.name if settings.target else "",
         cameras=settings.cameras,
         camera_collection=settings.camera_collection.name if settings.camera_collection else "",
-        images_dir=settings.images_dir, lam=settings.lam, mu=settings.mu, max_iter=settings.max_iter,
+        images_dir=settings.images_dir, auto_lambda=settings.auto_lambda, lam=settings.lam, mu=settings.mu,
+        max_iter=settings.max_iter,
         working_res=settings.working_res, texture_size=settings.texture_size, method=settings.method,
         out_dir=settings.out_dir, overwrite=settings.overwrite)
 
@@ -72,7 +75,10 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         col.prop(s, "method")
         sub = col.column()
         sub.active = s.method != "project"
-        sub.prop(s, "lam")
+        sub.prop(s, "auto_lambda")
+        row = sub.row()
+        row.active = not s.auto_lambda
+        row.prop(s, "lam")
         if s.method == "image":
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")

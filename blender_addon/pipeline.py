@@ -58,9 +58,10 @@ class Options:
         Folder to look for photos by camera name, when a camera has none.
     selected_only : bool
         Use the selected cameras when no names are given.
-    lam, mu, max_iter : float, float, int
+    lam, mu, max_iter : float or None, float, int
         The solver's TV weight, consistency weight (image domain) and outer
-        iterations.
+        iterations. ``lam=None`` picks lambda from how much the lighting
+        differs between the photos (:mod:`core.light_variation`).
     working_res_mp : float
         Photos are downscaled to at most this many megapixels.
     texture_size : int
@@ -80,7 +81,7 @@ class Options:
     camera_names: list | None = None
     images_dir: str | None = None
     selected_only: bool = False
-    lam: float = DEFAULTS.lam
+    lam: float | None = None
     mu: float = DEFAULTS.mu
     max_iter: int = DEFAULTS.max_iter
     working_res_mp: float = 1.0
@@ -95,6 +96,8 @@ class Options:
         if self.method not in METHODS:
             raise DelightError(f"unknown method {self.method!r} (choose one of {', '.join(METHODS)})")
         for name, v, lo in (("lambda", self.lam, 0.0), ("mu", self.mu, 0.0)):
+            if v is None and name == "lambda":
+                continue
             if not np.isfinite(v) or v < lo:
                 raise DelightError(f"{name} must be a finite number >= {lo}, got {v}")
         if int(self.max_iter) < 1:
@@ -289,9 +292,16 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
                       texture=layout if opt.method == "texture" else None,
                       view_weight=weights, names=[v.name for v in inputs.views])
     result = None
+    lam, variation = opt.lam, None
     if opt.method != "project":
-        params = SolverParams(domain=opt.method, lam=float(opt.lam), mu=float(opt.mu),
-                              max_iter=int(opt.max_iter))
+        if lam is None:
+            from .core.light_variation import choose_lambda, lighting_variation
+            variation = lighting_variation(photos, masks, problem.normals, uvs)
+            lam = choose_lambda(variation)
+            how = ("too little overlap between the photos to tell" if variation is None else
+                   f"lighting varies between the photos by {variation:.3f}")
+            solve_progress(0.0, f"{how}: lambda {lam:g}")
+        params = SolverParams(domain=opt.method, lam=float(lam), mu=float(opt.mu), max_iter=int(opt.max_iter))
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
     _check_cancel(cancel)
@@ -316,7 +326,7 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
                     sigma=None if result is None else np.asarray(result.sigma),
                     energy=[] if result is None else [float(e) for e in result.energy],
                     iterations=0 if result is None else int(result.iterations),
-                    info={} if result is None else dict(result.info))
+                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation))
 
 
 def _lighting_json(prepared, computed):
@@ -343,7 +353,9 @@ def _report_json(prepared, computed, paths, times):
         "object": prepared.inputs.object_name,
         "uv_map": prepared.inputs.mesh.uv_map,
         "method": opt.method,
-        "parameters": {"lambda": opt.lam, "mu": opt.mu, "max_iter": opt.max_iter,
+        "parameters": {"lambda": computed.info.get("lam", opt.lam), "lambda_auto": opt.lam is None,
+                       "lighting_variation": computed.info.get("lighting_variation"),
+                       "mu": opt.mu, "max_iter": opt.max_iter,
                        "working_res_mp": opt.working_res_mp, "texture_size": opt.texture_size,
                        "images_dir": opt.images_dir},
         "cameras": [{"name": v.name, "file": os.path.relpath(paths.views[v.name], paths.out_dir),

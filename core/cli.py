@@ -3,7 +3,7 @@
 ::
 
     python -m core solve BUNDLE --out DIR [--domain texture|image]
-                         [--lambda L] [--mu M] [--max-iter K] [--delta D]
+                         [--lambda L|auto] [--mu M] [--max-iter K] [--delta D]
 
 Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``solve`` loads a problem bundle (:mod:`core.bundle`), runs
@@ -42,11 +42,12 @@ from .atomic import atomic_path
 from .bundle import load_bundle
 from .exr import write_exr
 from .jsonio import json_value
+from .light_variation import LAMBDA_FIXED, LAMBDA_VARYING, choose_lambda, lighting_variation
 from .names import unique_names
 from .sh import SH_BASIS_NAMES
 from .solver import SolverParams, solve
 
-__all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
+__all__ = ["main", "build_parser", "write_outputs", "lambda_arg", "SH_BASIS"]
 
 SH_BASIS = list(SH_BASIS_NAMES)
 
@@ -142,6 +143,13 @@ def _positive(kind, allow_zero):
     return parse
 
 
+def lambda_arg(text):
+    """argparse type for ``--lambda``: a number >= 0, or ``auto`` (None: chosen by :mod:`core.light_variation`)."""
+    if text.strip().lower() == "auto":
+        return None
+    return _positive(float, True)(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m core",
@@ -157,8 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--domain", choices=("texture", "image"),
                    help="unknowns per texel or per pixel (default: texture if the bundle has a "
                         "texture layout, else image)")
-    s.add_argument("--lambda", dest="lam", type=_positive(float, True), default=defaults.lam,
-                   metavar="L", help=f"TV weight lambda (default {defaults.lam})")
+    s.add_argument("--lambda", dest="lam", type=lambda_arg, default=None, metavar="L",
+                   help=f"TV weight lambda, or 'auto' (default): {LAMBDA_FIXED:g} when the views share one "
+                        f"lighting, {LAMBDA_VARYING:g} when it changes between them (measured on the images)")
     s.add_argument("--mu", type=_positive(float, True), default=defaults.mu, metavar="M",
                    help=f"consistency weight mu, image domain (default {defaults.mu})")
     s.add_argument("--max-iter", type=_positive(int, False), default=defaults.max_iter, metavar="K",
@@ -198,7 +207,14 @@ def _solve(args) -> int:
     if domain == "texture" and problem.texture is None:
         raise _InputError(f"bundle {args.bundle}: the texture domain needs a texture layout "
                           "(texel_pos), which the bundle lacks; use --domain image")
-    params = SolverParams(domain=domain, lam=args.lam, mu=args.mu, delta=args.delta,
+    lam = args.lam
+    if lam is None:
+        variation = (None if problem.uv is None else
+                     lighting_variation(problem.images, problem.masks, problem.normals, problem.uv))
+        lam = choose_lambda(variation)
+        print(f"lambda {lam:g} (lighting variation between views: "
+              f"{'unknown' if variation is None else format(variation, '.3f')})", file=sys.stderr, flush=True)
+    params = SolverParams(domain=domain, lam=lam, mu=args.mu, delta=args.delta,
                           max_iter=args.max_iter, data_model=args.data_model, gauss_newton=args.gauss_newton)
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()

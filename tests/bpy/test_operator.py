@@ -131,9 +131,11 @@ def test_panel_and_settings_are_registered():
     assert s.method == "texture" and s.texture_size == 1024 and s.out_dir == "//"
     mesh = bpy.data.objects.new("M", bpy.data.meshes.new("M"))
     s.target = mesh
-    s.method, s.lam, s.overwrite = "image", 7.5, True
+    assert s.auto_lambda
+    s.method, s.auto_lambda, s.lam, s.overwrite = "image", False, 7.5, True
     kw = operator_settings(s)
     assert kw["object_name"] == "M" and kw["method"] == "image" and kw["lam"] == 7.5 and kw["overwrite"]
+    assert kw["auto_lambda"] is False
     # Every setting the panel hands over is a property of the operator.
     props = bpy.ops.delight.run.get_rna_type().properties.keys()
     assert set(kw) <= set(props)

@@ -1,0 +1,120 @@
+"""How much the lighting differs between the photos, and the TV weight it calls for.
+
+Under one fixed light a Lambertian surface point looks equally bright from
+every view (same normal, same shading). When the light moves between shots,
+view v sees it scaled by ``s_v(n)`` instead: a smooth function of the normal
+that differs per view. How much it differs decides how ill-posed the problem
+is (the paper, section 3): with fixed lighting only TV separates albedo from
+shading, so lambda must be large; with varying lighting the views pin the
+shading down and a small lambda is much truer.
+
+:func:`lighting_variation` measures it on the photos alone, before solving:
+per view, the part of its log brightness (relative to the other views) that
+the normal's SH basis explains, without the constant (an exposure change).
+Measured at 128 cells (README, "Accuracy"): 0.013 for `lambert_sky`, 0.13 for
+the sun and highlights of `photo_sun` and for its approximate mesh, 0.45 for
+`varying_light`; synthetic spheres 0.003 with fixed light (also with a
+different exposure per view) and 0.31 with a light per view.
+:func:`choose_lambda` maps it to the lambda measured best on either side.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .sh import sh_basis
+from .uvlayout import texel_index
+
+__all__ = ["lighting_variation", "choose_lambda", "VARYING_THRESHOLD", "LAMBDA_FIXED", "LAMBDA_VARYING"]
+
+VARYING_THRESHOLD = 0.2   # between 0.13 (fixed sun, highlights) and 0.31-0.45 (a light per shot)
+LAMBDA_FIXED = 5.0
+LAMBDA_VARYING = 0.5
+_MIN_SHARED = 100         # cells seen by two views or more, below which we cannot tell
+
+
+def lighting_variation(images, masks, normals, uvs, size: int = 128) -> float | None:
+    """How much each view's brightness departs from the others' as a smooth function of the normal.
+
+    Each surface cell's log brightness in view v, minus its mean over the
+    views, is ``log s_v(n) - mean_w log s_w(n)``: a function of the normal
+    alone, which a moving light makes large and smooth. It is fitted per view
+    by the 2nd-order SH basis of the cell's normal; the RMS of the fit,
+    without its constant (an exposure change), is returned. Disagreement that
+    the normal does not explain (misregistration on an approximate mesh,
+    highlights, noise) stays out.
+
+    Parameters
+    ----------
+    images : list of (H, W, C) arrays
+        Linear photos.
+    masks : list of (H, W) bool arrays
+    normals : list of (H, W, 3) arrays
+        World-space unit normals of the masked pixels.
+    uvs : list of (H, W, 2) arrays
+        UV coordinate of each masked pixel's surface point.
+    size : int
+        The surface is cut into ``size x size`` UV cells.
+
+    Returns
+    -------
+    float or None
+        About 0.01 to 0.05 under one fixed light, 0.2 or more when the light
+        moves between shots; None when fewer than 100 cells are seen by two
+        views.
+    """
+    cells, views, logs, norms = [], [], [], []
+    for v, (img, mask, nrm, uv) in enumerate(zip(images, masks, normals, uvs)):
+        lum = np.asarray(img, np.float64)[mask].mean(axis=-1)
+        t = texel_index(np.asarray(uv)[mask], size)
+        ok = (t >= 0) & (lum > 0) & np.isfinite(lum)
+        cells.append(t[ok])
+        views.append(np.full(int(ok.sum()), v))
+        logs.append(np.log(lum[ok]))
+        norms.append(np.asarray(nrm, np.float64)[mask][ok])
+    m = len(images)
+    cell, view, log, normal = (np.concatenate(a) for a in (cells, views, logs, norms))
+    # Mean log brightness of each (cell, view), and each cell's mean normal.
+    key, inverse = np.unique(cell * m + view, return_inverse=True)
+    n_obs = np.bincount(inverse)
+    mean = np.bincount(inverse, weights=log) / n_obs
+    c, v = key // m, key % m
+    shared = np.bincount(c)[c] >= 2
+    c, v, mean, n_obs = c[shared], v[shared], mean[shared], n_obs[shared]
+    if c.size == 0:
+        return None
+    cell_ids, c = np.unique(c, return_inverse=True)
+    if cell_ids.size < _MIN_SHARED:
+        return None
+    # Two-way fit mean ~ cell + view, so that an exposure change per view does not leak into the
+    # normal-dependent part through which views see which cells.
+    w_obs = n_obs.astype(np.float64)
+    wc = np.bincount(c, weights=w_obs)
+    wv = np.bincount(v, weights=w_obs, minlength=m)
+    offset = np.zeros(m)
+    for _ in range(20):
+        cell_mean = np.bincount(c, weights=w_obs * (mean - offset[v])) / wc
+        offset = np.bincount(v, weights=w_obs * (mean - cell_mean[c]), minlength=m) / np.maximum(wv, 1e-12)
+    dev = mean - cell_mean[c] - offset[v]
+    cell_normal = np.stack([np.bincount(cell, weights=normal[:, k], minlength=size * size)[cell_ids]
+                            for k in range(3)], axis=1)
+    cell_normal /= np.maximum(np.linalg.norm(cell_normal, axis=1, keepdims=True), 1e-12)
+    nu = sh_basis(cell_normal[c], np.float64)
+    explained, total = 0.0, 0.0
+    for k in range(m):
+        sel = v == k
+        if sel.sum() < 10:
+            continue
+        X, y, w = nu[sel], dev[sel], w_obs[sel]
+        coef = np.linalg.lstsq(X * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+        fit = X @ coef
+        fit -= np.average(fit, weights=w)  # an exposure change is not a lighting change
+        explained += float(np.sum(w * fit * fit))
+        total += float(w.sum())
+    return float(np.sqrt(explained / total)) if total else None
+
+
+def choose_lambda(variation: float | None) -> float:
+    """The TV weight for a measured :func:`lighting_variation` (fixed lighting when unknown)."""
+    if variation is not None and variation > VARYING_THRESHOLD:
+        return LAMBDA_VARYING
+    return LAMBDA_FIXED
