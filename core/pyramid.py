@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from .problem import Correspondences, Problem, TextureLayout
+from .uvlayout import bilinear_texels, uv_of_texel
 
 __all__ = ["coarsen", "upsample_pixels", "upsample_texels"]
 
@@ -105,3 +106,52 @@ def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """
     r, c = np.nonzero(mask)
     return coarse[r // 2, c // 2]
+
+
+def supported_size(problem: Problem, texels_per_pixel: float) -> int:
+    """The largest size, halving from the problem's texture, with at most ``texels_per_pixel`` seen texels per pixel.
+
+    Texels beyond what the photos resolve carry no data of their own: TV fills
+    them, at the cost of the whole solve. Never below ``MIN_SIZE``. (Coarser
+    sizes count every texel in reach, not only those inside the islands.)
+    """
+    size = problem.texture.size
+    pixels = sum(int(m.sum()) for m in problem.masks)
+    while size // 2 >= MIN_SIZE:
+        # Seen as the solver sees them: every texel a pixel's bilinear footprint reaches.
+        inside = problem.texture.inside if size == problem.texture.size else np.ones((size, size), bool)
+        hit = np.zeros(size * size, dtype=bool)
+        for uv, m in zip(problem.uv, problem.masks):
+            idx, w = bilinear_texels(uv[m], inside)
+            hit[idx[w > 0]] = True
+        if np.count_nonzero(hit) <= texels_per_pixel * pixels:
+            break
+        size //= 2
+    return size
+
+
+def with_texture_size(problem: Problem, size: int) -> Problem:
+    """The same photos on the texture layout halved down to ``size``."""
+    layout = problem.texture
+    while layout.size > size:
+        layout = _coarsen_layout(layout)
+    return Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences,
+                   uv=problem.uv, texture=layout, view_weight=problem.view_weight, names=list(problem.names))
+
+
+def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayout):
+    """A coarse ``(n, n, C)`` texture sampled bilinearly at the texel centres of a finer ``layout``.
+
+    Only ``seen`` coarse texels contribute. A fine texel is seen when it is
+    inside an island and the coarse texel it lies in was seen. Returns the
+    ``(N, N, C)`` texture, NaN where not seen, and the seen mask.
+    """
+    size, n = layout.size, seen.shape[0]
+    parent = np.minimum(np.arange(size) * n // size, n - 1)
+    r, c = np.nonzero(layout.inside & seen[parent][:, parent])
+    idx, w = bilinear_texels(uv_of_texel(r, c, size), seen)
+    values = np.nan_to_num(coarse.reshape(-1, coarse.shape[-1]))[idx]
+    fine = np.full((size, size, coarse.shape[-1]), np.nan, dtype=np.float32)
+    ok = w.sum(axis=1) > 0
+    fine[r[ok], c[ok]] = np.einsum("kj,kjc->kc", w[ok], values[ok])
+    return fine, np.isfinite(fine[..., 0])

@@ -44,7 +44,8 @@ import scipy.sparse as sp
 
 from .huber import huber_inplace, mm_weight
 from .operators import Discretization, image_domain, texture_domain
-from .pyramid import coarsen, upsample_pixels, upsample_texels
+from .pyramid import (coarsen, supported_size, upsample_bilinear, upsample_pixels, upsample_texels,
+                      with_texture_size)
 from .sh import DIFFUSE, unpack_products
 
 __all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
@@ -89,6 +90,10 @@ class SolverParams:
         nearest parent, sigma as it is).
     threads : int
         Channels solved at once.
+    max_texels_per_pixel : float
+        Texture domain: when the texture has more seen texels than this many
+        per photo pixel on the mesh, solve on a texture halved until it has
+        not, and sample the result bilinearly back up (0 never does).
     """
 
     domain: str = "texture"
@@ -106,6 +111,7 @@ class SolverParams:
     precision: str = "float32"
     levels: int = 4
     coarse_iter: int = 100
+    max_texels_per_pixel: float = 2.0
 
     def check(self):
         if self.domain not in ("texture", "image"):
@@ -120,6 +126,8 @@ class SolverParams:
             raise ValueError("solver: delta must be > 0")
         if self.max_iter < 1 or self.cg_iter < 1:
             raise ValueError("solver: max_iter and cg_iter must be >= 1")
+        if not np.isfinite(self.max_texels_per_pixel) or self.max_texels_per_pixel < 0:
+            raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
             raise ValueError("solver: levels and coarse_iter must be >= 1")
 
@@ -332,6 +340,14 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
         if cancel is not None and cancel():
             raise Cancelled("cancelled by the user")
 
+    if params.domain == "texture" and params.max_texels_per_pixel > 0 and problem.texture is not None:
+        size = supported_size(problem, params.max_texels_per_pixel)
+        if size < problem.texture.size:
+            r = solve(with_texture_size(problem, size), replace(params, max_texels_per_pixel=0.0), progress, cancel)
+            r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
+            r.info["solved_size"] = size
+            return r
+
     coarse = None
     base = 0.0  # of the progress bar, used by the coarse levels
     if params.levels > 1:
@@ -397,6 +413,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_pixel.size),
             "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
             "domain": d.domain, "elapsed": elapsed,
+            "solved_size": problem.texture.size if d.domain == "texture" else None,
             "coarse": None if coarse is None else {
                 "size": None if coarse.texture is None else int(coarse.texture.shape[0]),
                 "shapes": [v.shape[:2] for v in coarse.views], "iterations": coarse.iterations,

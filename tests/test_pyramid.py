@@ -5,7 +5,9 @@ from core import pyramid
 from core.bilinear import masked_corners
 from core.correspondences import find_correspondences
 from core.problem import Correspondences, Problem
+from core.operators import texture_domain
 from core.pyramid import coarsen, upsample_pixels
+from core.uvlayout import uv_of_texel
 from core.synthetic import sphere_scene
 
 
@@ -83,3 +85,36 @@ def test_upsample_pixels_takes_the_nearest_parent():
     mask = np.zeros((4, 5), bool)
     mask[[0, 1, 3, 3], [2, 1, 4, 0]] = True
     np.testing.assert_array_equal(upsample_pixels(coarse, mask)[:, 0], [1, np.nan, 3, 5])
+
+
+def test_supported_size_halves_only_textures_finer_than_the_photos():
+    sc = sphere_scene(n_views=6, height=60, width=80, texture_size=256, seed=2)
+    pixels = sum(int(m.sum()) for m in sc.problem.masks)
+    size = pyramid.supported_size(sc.problem, 2.0)
+    assert size < 256
+    # The chosen size has at most 2 seen texels per pixel, twice that size more than 2.
+    for n, ok in ((size, True), (2 * size, False)):
+        seen = texture_domain(pyramid.with_texture_size(sc.problem, n)).n_unknowns
+        assert (seen <= 2 * pixels) == ok, (n, seen, pixels)
+    small = sphere_scene(n_views=6, height=60, width=80, texture_size=32, seed=2)
+    assert pyramid.supported_size(small.problem, 2.0) == 32
+
+
+def test_upsample_bilinear_is_exact_for_a_linear_albedo():
+    sc = sphere_scene(n_views=6, height=60, width=80, texture_size=64, seed=2)
+    layout = sc.problem.texture
+    coarse_layout = pyramid.with_texture_size(sc.problem, 32).texture
+    def linear(n):
+        r, c = np.mgrid[0:n, 0:n]
+        uv = uv_of_texel(r, c, n)
+        return (0.2 + 0.5 * uv[..., 0] + 0.3 * uv[..., 1])[..., None].astype(np.float32)
+    seen = coarse_layout.inside.copy()
+    seen[:, :4] = False                                   # a part no camera saw stays unseen
+    coarse = np.where(seen[..., None], linear(32), np.nan)
+    fine, fine_seen = pyramid.upsample_bilinear(coarse, seen, layout)
+    assert fine.shape == (64, 64, 1) and not fine_seen[:, :8].any()
+    # Away from the unseen part and the texture's border, bilinear sampling of a linear function is exact.
+    inner = fine_seen.copy()
+    inner[:, :10] = inner[:, -1:] = inner[:1] = inner[-1:] = False
+    np.testing.assert_allclose(fine[inner, 0], linear(64)[inner, 0], atol=1e-5)
+    assert np.all(np.isnan(fine[~fine_seen]))

@@ -191,3 +191,16 @@ def test_progress_moves_forward_through_the_levels():
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions), seen
     assert any("coarse level" in m for _, m in seen) and fractions[-1] == 1.0
+
+
+def test_a_texture_finer_than_the_photos_is_solved_coarser_and_sampled_up():
+    sc = sphere_scene(n_views=6, height=60, width=80, texture_size=256, seed=2)
+    capped = solve(sc.problem, SolverParams(max_iter=10))
+    full = solve(sc.problem, SolverParams(max_iter=10, max_texels_per_pixel=0))
+    assert capped.texture.shape == full.texture.shape == (256, 256, 3)
+    assert capped.info["solved_size"] < 256 and full.info["solved_size"] == 256
+    both = capped.seen & full.seen
+    assert both.sum() > 0.9 * full.seen.sum()
+    # Measured 0.226/0.228/0.258 against 0.241/0.237/0.276 at full size, in half the time.
+    assert np.all(scaled_rmse(capped.texture, sc.albedo_texture, both)
+                  < scaled_rmse(full.texture, sc.albedo_texture, both) + 0.02)
