@@ -83,9 +83,7 @@ class Discretization:
         return len(self.pixel_offsets) - 1
 
     def __post_init__(self):
-        if self.obs_matrix is not None:
-            self._AT = self.obs_matrix.T.tocsr()
-            self._A2T = self.obs_matrix.multiply(self.obs_matrix).T.tocsr()
+        self._matrices = None
         if self.obs_view is None:
             view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
             self.obs_view = view_of_pixel[self.obs_pixel]
@@ -103,7 +101,19 @@ class Discretization:
         """``A^T x``, or with ``squared`` the same with A's entries squared: observations summed onto unknowns."""
         if self.diagonal_data:
             return np.bincount(self.obs_unknown, weights=x, minlength=self.n_unknowns)
-        return (self._A2T if squared else self._AT) @ x
+        _, AT, A2T = self.observation_matrices()
+        return (A2T if squared else AT) @ x
+
+    def observation_matrices(self):
+        """``A``, ``A^T`` and ``(A^2)^T`` as CSR matrices (A built from ``obs_unknown`` when it is a selection)."""
+        if self._matrices is None:
+            A = self.obs_matrix
+            if A is None:
+                o = self.obs_unknown.size
+                A = sp.csr_matrix((np.ones(o, np.float32), self.obs_unknown, np.arange(o + 1)),
+                                  shape=(o, self.n_unknowns))
+            self._matrices = (A, A.T.tocsr(), A.multiply(A).T.tocsr())
+        return self._matrices
 
     def row_scale(self, lam: float, mu: float) -> np.ndarray:
         s = self.base.copy()

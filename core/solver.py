@@ -451,18 +451,6 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
     return views, texture, seen
 
 
-def _observation_matrix(d: Discretization) -> sp.csr_matrix:
-    """``A`` as a sparse matrix, also when it is a selection (``obs_unknown``); cached on d."""
-    if d.obs_matrix is not None:
-        return d.obs_matrix
-    A = d.__dict__.get("_selection")
-    if A is None:
-        o = d.obs_unknown.size
-        A = d.__dict__["_selection"] = sp.csr_matrix(
-            (np.ones(o, np.float32), d.obs_unknown, np.arange(o + 1)), shape=(o, d.n_unknowns))
-    return A
-
-
 def _gauss_newton_step(ch: "_Channel") -> bool:
     """One Gauss-Newton step on rho and sigma together, on the current majorant.
 
@@ -477,14 +465,13 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
     d = ch.d
     m, n = d.n_views, d.n_unknowns
     nv = 9 * m
-    A = _observation_matrix(d)
+    A, AT, A2T = d.observation_matrices()
     a = ch.obs_shade.astype(np.float64)
     vals = ch.obs_values.astype(np.float64)
     rho = ch.rho.astype(np.float64)
     rho_o = A @ rho
     r = rho_o * a - vals
     w = d.obs_weight * mm_weight(r, ch.delta)
-    AT = A.T.tocsr()
     data = w * a * a
     # d r_o / d sigma_v(o) = rho_o nu_o: an (O, 9m) matrix with 9 entries per row, coupled to rho through A^T.
     nu_o = d.nu[d.obs_pixel].astype(np.float64)
@@ -503,7 +490,7 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
         S[v] = unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
         g_sigma[9 * v:9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
     g_rho = AT @ (w * r * a)
-    jacobi = A.multiply(A).T.tocsr() @ data
+    jacobi = A2T @ data
     if d.B.shape[0]:
         B, BT = d.B.astype(np.float64), d.BT.astype(np.float64)
         sw = ch.s * mm_weight(B @ rho, ch.delta)
