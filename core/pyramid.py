@@ -13,10 +13,11 @@ import warnings
 
 import numpy as np
 
+from .bilinear import masked_corners
 from .problem import Correspondences, Problem, TextureLayout
 from .uvlayout import bilinear_texels, uv_of_texel
 
-__all__ = ["coarsen", "upsample_pixels", "upsample_texels"]
+__all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
 
 # Below these a level has too little data to say anything about the finer one.
 MIN_SIZE = 32
@@ -92,20 +93,18 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
                    view_weight=half(problem.view_weight), names=list(problem.names))
 
 
-def upsample_texels(coarse: np.ndarray, size: int) -> np.ndarray:
-    """Nearest-parent upsampling of a ``(n, n, C)`` texture to ``(size, size, C)`` (NaN stays NaN)."""
-    idx = np.minimum(np.arange(size) // 2, coarse.shape[0] - 1)
-    return coarse[idx][:, idx]
-
-
 def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Nearest-parent values of a coarse ``(h, w, C)`` view map at the fine mask's pixels.
+    """A coarse ``(h, w, C)`` view map sampled bilinearly at the fine mask's pixels.
 
-    Fine pixel ``(r, c)`` takes coarse ``(r // 2, c // 2)``; returns ``(mask.sum(), C)``,
-    NaN where the parent is NaN (outside the coarse mask).
+    Coarse pixel ``(R, C)`` is fine pixel ``(2R, 2C)``, so fine ``(r, c)`` sits
+    at ``(r / 2, c / 2)`` in the coarse map; only its finite (masked) pixels
+    contribute. Returns ``(mask.sum(), C)``, NaN where none is near.
     """
     r, c = np.nonzero(mask)
-    return coarse[r // 2, c // 2]
+    flat, w = masked_corners(c / 2.0, r / 2.0, np.isfinite(coarse[..., 0]))
+    out = np.einsum("kj,kjc->kc", w, np.nan_to_num(coarse.reshape(-1, coarse.shape[-1]))[flat])
+    out[w.sum(axis=1) == 0] = np.nan
+    return out
 
 
 def supported_size(problem: Problem, texels_per_pixel: float) -> int:

@@ -44,8 +44,7 @@ import scipy.sparse as sp
 
 from .huber import huber_inplace, mm_weight
 from .operators import Discretization, image_domain, texture_domain
-from .pyramid import (coarsen, supported_size, upsample_bilinear, upsample_pixels, upsample_texels,
-                      with_texture_size)
+from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, unpack_products
 
 __all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
@@ -372,7 +371,8 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     if coarse is not None:
         # rho and sigma both after the coarse level's rescaling, so their product is the coarse one.
         if d.domain == "texture":
-            up = upsample_texels(coarse.texture, problem.texture.size).reshape(-1, problem.channels)[d.texel_index]
+            up = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)[0]
+            up = up.reshape(-1, problem.channels)[d.texel_index]
         else:
             up = np.concatenate([upsample_pixels(v, m) for v, m in zip(coarse.views, problem.masks)])
         rho0 = np.where(np.isfinite(up), up, d.rho0)

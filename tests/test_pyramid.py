@@ -79,12 +79,19 @@ def test_coarsen_without_a_texture(scene, monkeypatch):
     assert coarsen(bare) is None
 
 
-def test_upsample_pixels_takes_the_nearest_parent():
-    coarse = np.arange(6, dtype=np.float32).reshape(2, 3, 1)
-    coarse[0, 0] = np.nan
-    mask = np.zeros((4, 5), bool)
-    mask[[0, 1, 3, 3], [2, 1, 4, 0]] = True
-    np.testing.assert_array_equal(upsample_pixels(coarse, mask)[:, 0], [1, np.nan, 3, 5])
+def test_upsample_pixels_is_bilinear_inside_the_coarse_mask():
+    h, w = 20, 30
+    r, c = np.mgrid[0:h, 0:w]
+    fine_truth = (1 + 0.1 * r - 0.05 * c).astype(np.float32)
+    coarse = fine_truth[::2, ::2][..., None].copy()          # coarse (R, C) is fine (2R, 2C)
+    coarse[:, :3] = np.nan                                   # outside the coarse mask
+    mask = np.ones((h, w), bool)
+    up = upsample_pixels(coarse, mask)[:, 0].reshape(h, w)
+    inner = np.zeros((h, w), bool)
+    inner[:-2, 6:-2] = True                                  # every corner inside the coarse mask
+    np.testing.assert_allclose(up[inner], fine_truth[inner], atol=1e-5)
+    assert np.all(np.isnan(up[:, :5]))                       # on or between masked-out coarse pixels
+    assert np.all(np.isfinite(up[:, 5:]))
 
 
 def test_supported_size_halves_only_textures_finer_than_the_photos():
