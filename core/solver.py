@@ -31,7 +31,11 @@ Defaults were chosen by albedo RMSE against the ground truth of the rendered
 fixtures (README, "What we measured about the solver"), not by energy:
 delta = 1e-3 (1e-4 leaves rho = I nearly a fixed point), mu = 10 with
 per-pixel normalised correspondences (mu = 1000 turns them into hard
-constraints that flatten the albedo), 4 levels.
+constraints that flatten the albedo), 4 levels, the splat data model and no
+Gauss-Newton step (both tie or lose on the renders; they are what recovers a
+textured surface exactly in the well-posed synthetic case). lambda is the
+caller's; the add-on and the command lines pick it with
+:mod:`core.light_variation`.
 """
 from __future__ import annotations
 
