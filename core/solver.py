@@ -89,8 +89,8 @@ class SolverParams:
         Both domains: solve first on up to ``levels - 1`` coarser copies (every
         other pixel each, and half the texture in the texture domain; see
         :func:`core.pyramid.coarsen`), ``coarse_iter`` iterations at most on
-        each, and start each level from the one below (rho upsampled from the
-        nearest parent, sigma as it is).
+        each, and start each level from the one below (rho sampled
+        bilinearly from it, sigma as it is).
     threads : int
         Channels solved at once.
     max_texels_per_pixel : float
