@@ -143,7 +143,8 @@ def main(argv=None, blend_loaded: bool = False) -> int:
     for w in report.warnings:
         print(f"warning: {w}", flush=True)
     times = ", ".join(f"{k} {v:.2f} s" for k, v in report.times.items())
-    print(f"delight: wrote {report.albedo_path} ({report.iterations} iterations; {times})", flush=True)
+    print(f"delight: wrote {report.albedo_path} ({report.iterations} iterations, {report.lambda_text}; {times})",
+          flush=True)
     if report.saved_blend:
         print(f"delight: saved {report.saved_blend}", flush=True)
     return 0

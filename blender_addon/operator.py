@@ -155,7 +155,8 @@ class DELIGHT_OT_run(bpy.types.Operator):
 
     def _done(self, report):
         msg = (f"Delight: {report.object_name} -> {report.image_name} "
-               f"({report.iterations} iterations, {sum(report.times.values()):.1f} s), files in {report.out_dir}")
+               f"({report.iterations} iterations, {report.lambda_text}, {sum(report.times.values()):.1f} s), "
+               f"files in {report.out_dir}")
         for w in report.warnings:
             self.report({"WARNING"}, w)
         self.report({"INFO"}, msg)

@@ -149,10 +149,21 @@ class RunReport:
     cameras: list
     warnings: list = field(default_factory=list)
     saved_blend: str | None = None
+    lam: float | None = None                  # the TV weight used (None for "project")
+    lighting_variation: float | None = None   # what auto lambda measured, None when lambda was given
 
     @property
     def albedo_path(self) -> str:
         return self.files[0]
+
+    @property
+    def lambda_text(self) -> str:
+        """How lambda was set, for messages: "lambda 0.5 (auto: ...)"."""
+        if self.lam is None:
+            return "no solve"
+        if self.lighting_variation is None:
+            return f"lambda {self.lam:g}"
+        return f"lambda {self.lam:g} (auto: lighting varies between the photos by {self.lighting_variation:.2f})"
 
 
 def _sub(progress, stage):
@@ -420,7 +431,8 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
     return RunReport(object_name=inputs.object_name, method=opt.method, out_dir=paths.out_dir, files=files,
                      image_name=image.name, materials=[m.name for m in mats], times=times,
                      iterations=computed.iterations, energy=computed.energy, cameras=names,
-                     warnings=list(prepared.warnings), saved_blend=saved)
+                     warnings=list(prepared.warnings), saved_blend=saved,
+                     lam=computed.info.get("lam"), lighting_variation=computed.info.get("lighting_variation"))
 
 
 def run(scene, options: Options, progress=None, cancel=None) -> RunReport:

@@ -22,11 +22,13 @@ def test_auto_lambda_follows_the_lighting(name, lam, tmp_path):
     fixture = os.path.join(ROOT, "blend_fixtures", name)
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture, "scene.blend"))
     # A 32^2 texture has no coarse level, so one iteration is cheap; lambda is chosen before solving.
-    pipeline.run(bpy.context.scene, pipeline.Options(object_name="Subject", texture_size=32, max_iter=1,
-                                                     working_res_mp=0.05, out_dir=str(tmp_path)))
+    rep = pipeline.run(bpy.context.scene, pipeline.Options(object_name="Subject", texture_size=32, max_iter=1,
+                                                           working_res_mp=0.05, out_dir=str(tmp_path)))
     with open(tmp_path / "report.json") as fh:
         params = json.load(fh)["parameters"]
     assert params["lambda_auto"] is True and params["lambda"] == lam, params
+    assert rep.lam == lam and rep.lighting_variation == params["lighting_variation"]
+    assert rep.lambda_text.startswith(f"lambda {lam:g} (auto: lighting varies")
     # Measured at full resolution: 0.013 (lambert_sky), 0.13 (photo_sun), 0.45 (varying_light).
     variation = params["lighting_variation"]
     assert (variation > VARYING_THRESHOLD) == (lam == LAMBDA_VARYING), variation
@@ -34,8 +36,9 @@ def test_auto_lambda_follows_the_lighting(name, lam, tmp_path):
 
 def test_a_given_lambda_is_used_as_is(tmp_path):
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ROOT, "blend_fixtures", "varying_light", "scene.blend"))
-    pipeline.run(bpy.context.scene, pipeline.Options(object_name="Subject", texture_size=32, max_iter=1, lam=2.0,
-                                                     working_res_mp=0.05, out_dir=str(tmp_path)))
+    rep = pipeline.run(bpy.context.scene, pipeline.Options(object_name="Subject", texture_size=32, max_iter=1,
+                                                           lam=2.0, working_res_mp=0.05, out_dir=str(tmp_path)))
     with open(tmp_path / "report.json") as fh:
         params = json.load(fh)["parameters"]
     assert params["lambda"] == 2.0 and params["lambda_auto"] is False and params["lighting_variation"] is None
+    assert rep.lambda_text == "lambda 2"
