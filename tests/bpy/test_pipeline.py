@@ -275,6 +275,17 @@ def test_texture_method_delights(tmp_path):
     assert np.nanmax(v0[..., :3]) <= albedo[..., :3].max() + 1e-5
 
 
+def test_a_texture_finer_than_the_photos_is_solved_coarser(tmp_path):
+    s = build_scene(str(tmp_path))
+    rep = pipeline.run(s.scene, options(tmp_path / "out", method="texture", max_iter=2, texture_size=512))
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["solver_info"]["solved_size"] < 512
+    albedo, _ = read_exr(rep.albedo_path)
+    assert albedo.shape == (512, 512, 4) and np.isfinite(albedo).all()
+    seen = albedo[..., 3] > 0
+    assert seen.any() and np.ptp(albedo[seen, :3]) > 0
+
+
 def test_image_method_fuses_the_solved_views(tmp_path):
     pytest.importorskip("blender_addon.core.correspondences")
     s = build_scene(str(tmp_path))
