@@ -93,6 +93,11 @@ class SolverParams:
         bilinearly from it, sigma as it is).
     threads : int
         Channels solved at once.
+    extrapolate : float
+        After each iteration, try ``rho + extrapolate * (rho - rho_before)``
+        and keep it if it lowers the energy (0 never tries): MM creeps along
+        a steady direction, and this follows it further at the cost of one
+        energy evaluation.
     max_texels_per_pixel : float
         Texture domain: when the texture has more seen texels than this many
         per photo pixel on the mesh, solve on a texture halved until it has
@@ -115,6 +120,7 @@ class SolverParams:
     levels: int = 4
     coarse_iter: int = 100
     max_texels_per_pixel: float = 2.0
+    extrapolate: float = 1.0
 
     def check(self):
         if self.domain not in ("texture", "image"):
@@ -129,6 +135,8 @@ class SolverParams:
             raise ValueError("solver: delta must be > 0")
         if self.max_iter < 1 or self.cg_iter < 1:
             raise ValueError("solver: max_iter and cg_iter must be >= 1")
+        if not np.isfinite(self.extrapolate) or self.extrapolate < 0:
+            raise ValueError(f"solver: extrapolate must be finite and >= 0, got {self.extrapolate}")
         if not np.isfinite(self.max_texels_per_pixel) or self.max_texels_per_pixel < 0:
             raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
@@ -237,6 +245,7 @@ class _Channel:
         self.delta = params.delta
         self.cg_iter = params.cg_iter
         self.gauss_newton = params.gauss_newton
+        self.extrapolate = params.extrapolate
         self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
         # Gathered once per change: the observations' values and shading.
@@ -309,10 +318,16 @@ class _Channel:
             self.e = e
 
     def step(self):
+        before = self.rho
         self.rho_step()
         if self.gauss_newton:
             _gauss_newton_step(self)
         self.sigma_step()
+        if self.extrapolate > 0:
+            further = self.rho + self.ft(self.extrapolate) * (self.rho - before)
+            e = self.energy(rho=further)
+            if e < self.e:
+                self.rho, self.e = further, e
         return self.e
 
 
