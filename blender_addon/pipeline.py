@@ -150,7 +150,8 @@ class RunReport:
     warnings: list = field(default_factory=list)
     saved_blend: str | None = None
     lam: float | None = None                  # the TV weight used (None for "project")
-    lighting_variation: float | None = None   # what auto lambda measured, None when lambda was given
+    lighting_variation: float | None = None   # what auto lambda measured
+    lambda_auto: bool = False
 
     @property
     def albedo_path(self) -> str:
@@ -161,9 +162,8 @@ class RunReport:
         """How lambda was set, for messages: "lambda 0.5 (auto: ...)"."""
         if self.lam is None:
             return "no solve"
-        if self.lighting_variation is None:
-            return f"lambda {self.lam:g}"
-        return f"lambda {self.lam:g} (auto: lighting varies between the photos by {self.lighting_variation:.2f})"
+        from .core.light_variation import describe_lambda
+        return describe_lambda(self.lam, self.lighting_variation, self.lambda_auto)
 
 
 def _sub(progress, stage):
@@ -306,12 +306,9 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     lam, variation = opt.lam, None
     if opt.method != "project":
         if lam is None:
-            from .core.light_variation import choose_lambda, lighting_variation
-            variation = lighting_variation(photos, masks, problem.normals, uvs)
-            lam = choose_lambda(variation)
-            how = ("too little overlap between the photos to tell" if variation is None else
-                   f"lighting varies between the photos by {variation:.3f}")
-            solve_progress(0.0, f"{how}: lambda {lam:g}")
+            from .core.light_variation import auto_lambda, describe_lambda
+            lam, variation = auto_lambda(problem)
+            solve_progress(0.0, describe_lambda(lam, variation, auto=True))
         params = SolverParams(domain=opt.method, lam=float(lam), mu=float(opt.mu), max_iter=int(opt.max_iter))
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
@@ -432,7 +429,8 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
                      image_name=image.name, materials=[m.name for m in mats], times=times,
                      iterations=computed.iterations, energy=computed.energy, cameras=names,
                      warnings=list(prepared.warnings), saved_blend=saved,
-                     lam=computed.info.get("lam"), lighting_variation=computed.info.get("lighting_variation"))
+                     lam=computed.info.get("lam"), lighting_variation=computed.info.get("lighting_variation"),
+                     lambda_auto=opt.lam is None)
 
 
 def run(scene, options: Options, progress=None, cancel=None) -> RunReport:

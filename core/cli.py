@@ -42,7 +42,7 @@ from .atomic import atomic_path
 from .bundle import load_bundle
 from .exr import write_exr
 from .jsonio import json_value
-from .light_variation import LAMBDA_FIXED, LAMBDA_VARYING, choose_lambda, lighting_variation
+from .light_variation import LAMBDA_FIXED, LAMBDA_VARYING, auto_lambda, describe_lambda
 from .names import unique_names
 from .sh import SH_BASIS_NAMES
 from .solver import SolverParams, solve
@@ -209,11 +209,8 @@ def _solve(args) -> int:
                           "(texel_pos), which the bundle lacks; use --domain image")
     lam = args.lam
     if lam is None:
-        variation = (None if problem.uv is None else
-                     lighting_variation(problem.images, problem.masks, problem.normals, problem.uv))
-        lam = choose_lambda(variation)
-        print(f"lambda {lam:g} (lighting variation between views: "
-              f"{'unknown' if variation is None else format(variation, '.3f')})", file=sys.stderr, flush=True)
+        lam, variation = auto_lambda(problem)
+        print(describe_lambda(lam, variation, auto=True), file=sys.stderr, flush=True)
     params = SolverParams(domain=domain, lam=lam, mu=args.mu, delta=args.delta,
                           max_iter=args.max_iter, data_model=args.data_model, gauss_newton=args.gauss_newton)
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)

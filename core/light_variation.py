@@ -24,7 +24,8 @@ import numpy as np
 from .sh import sh_basis
 from .uvlayout import texel_index
 
-__all__ = ["lighting_variation", "choose_lambda", "VARYING_THRESHOLD", "LAMBDA_FIXED", "LAMBDA_VARYING"]
+__all__ = ["lighting_variation", "choose_lambda", "auto_lambda", "describe_lambda", "VARYING_THRESHOLD",
+           "LAMBDA_FIXED", "LAMBDA_VARYING"]
 
 VARYING_THRESHOLD = 0.2   # between 0.13 (fixed sun, highlights) and 0.31-0.45 (a light per shot)
 LAMBDA_FIXED = 5.0
@@ -118,3 +119,19 @@ def choose_lambda(variation: float | None) -> float:
     if variation is not None and variation > VARYING_THRESHOLD:
         return LAMBDA_VARYING
     return LAMBDA_FIXED
+
+
+def auto_lambda(problem) -> tuple:
+    """``(lambda, variation)`` for a :class:`core.problem.Problem`; variation is None without UVs or overlap."""
+    variation = (None if problem.uv is None else
+                 lighting_variation(problem.images, problem.masks, problem.normals, problem.uv))
+    return choose_lambda(variation), variation
+
+
+def describe_lambda(lam: float, variation: float | None, auto: bool) -> str:
+    """How lambda was set, for messages: ``"lambda 0.5 (auto: lighting varies ... by 0.45)"``."""
+    if not auto:
+        return f"lambda {lam:g}"
+    if variation is None:
+        return f"lambda {lam:g} (auto: too little overlap between the photos to tell)"
+    return f"lambda {lam:g} (auto: lighting varies between the photos by {variation:.2f})"

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from core.light_variation import (LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD, choose_lambda,
-                                  lighting_variation)
+from core.light_variation import (LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD, auto_lambda, choose_lambda,
+                                  describe_lambda, lighting_variation)
 from core.synthetic import sphere_scene
 
 
@@ -42,3 +42,11 @@ def test_too_little_overlap_is_unknown_and_means_fixed(fixed):
     assert choose_lambda(None) == LAMBDA_FIXED
     assert choose_lambda(0.5 * VARYING_THRESHOLD) == LAMBDA_FIXED
     assert choose_lambda(2 * VARYING_THRESHOLD) == LAMBDA_VARYING
+
+
+def test_auto_lambda_and_its_description(fixed):
+    lam, variation = auto_lambda(fixed.problem)
+    assert lam == LAMBDA_FIXED and variation == _variation(fixed)
+    assert describe_lambda(lam, variation, auto=True).startswith("lambda 5 (auto: lighting varies")
+    assert "too little overlap" in describe_lambda(lam, None, auto=True)
+    assert describe_lambda(2.5, None, auto=False) == "lambda 2.5"
