@@ -47,6 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .huber import huber_inplace, mm_weight
+from .multigrid import Hierarchy
 from .operators import Discretization, image_domain, texture_domain
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, unpack_products
@@ -121,10 +122,13 @@ class SolverParams:
     coarse_iter: int = 100
     max_texels_per_pixel: float = 2.0
     extrapolate: float = 1.0
+    preconditioner: str = "jacobi"
 
     def check(self):
         if self.domain not in ("texture", "image"):
             raise ValueError(f"solver: domain must be 'texture' or 'image', got {self.domain!r}")
+        if self.preconditioner not in ("jacobi", "multigrid"):
+            raise ValueError(f"solver: preconditioner must be 'jacobi' or 'multigrid', got {self.preconditioner!r}")
         if self.data_model not in ("interpolate", "splat"):
             raise ValueError(f"solver: data_model must be 'interpolate' or 'splat', got {self.data_model!r}")
         for name in ("lam", "mu", "delta"):
@@ -236,8 +240,9 @@ def _pcg(matvec, b, x, precondition, iters):
 class _Channel:
     """The MM state of one colour channel."""
 
-    def __init__(self, d: Discretization, c: int, params: SolverParams, rho0=None, sigma0=None):
+    def __init__(self, d: Discretization, c: int, params: SolverParams, rho0=None, sigma0=None, hierarchy=None):
         self.d = d
+        self.hierarchy = hierarchy
         self.ft = np.dtype(params.precision).type
         self.values = np.ascontiguousarray(d.values[:, c])
         self.rho = np.ascontiguousarray(d.rho0[:, c] if rho0 is None else rho0).astype(self.ft)
@@ -282,11 +287,14 @@ class _Channel:
             sw = self.s_ft * mm_weight(d.B @ self.rho, self.delta).astype(self.ft)
             B, BT = d.B, d.BT
             matvec = lambda x: data(x) + BT @ (sw * (B @ x))  # noqa: E731
+            if self.hierarchy is not None and d.diagonal_data:
+                precondition = self.hierarchy.preconditioner(matvec, jacobi, sw, self.ft)
             jacobi = jacobi + d.B2T @ sw
         else:
             matvec = data
-        dinv = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
-        rho = _pcg(matvec, rhs, self.rho.copy(), dinv, self.cg_iter)
+        if self.hierarchy is None or not d.diagonal_data or not d.B.shape[0]:
+            precondition = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
+        rho = _pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
         e = self.energy(rho=rho)
         if e <= self.e:
             self.rho, self.e = rho, e
@@ -396,8 +404,11 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             up = np.concatenate([upsample_pixels(v, m) for v, m in zip(coarse.views, problem.masks)])
         rho0 = np.where(np.isfinite(up), up, d.rho0)
         sigma0 = coarse.sigma
+    hierarchy = None
+    if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
+        hierarchy = Hierarchy(d.grid, d.B, d.BT)
     channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
-                         None if sigma0 is None else sigma0[:, c]) for c in range(problem.channels)]
+                         None if sigma0 is None else sigma0[:, c], hierarchy) for c in range(problem.channels)]
     pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
     history, elapsed = [], []
     it = 0
