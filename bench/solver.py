@@ -10,9 +10,10 @@ with correspondences from ``core.correspondences``. Rows:
 
 * ``reference``: the paper's algorithm as written: each outer iteration
   assembles the normal equations from scratch with scipy.sparse and solves
-  them with ``scipy.sparse.linalg.cg`` (same CG iteration count), in float64;
-* ``image``: our image-domain solver (fixed sparsity, matrix-free PCG,
-  float32, channels in threads, coarse-to-fine);
+  them with ``scipy.sparse.linalg.cg`` (30 iterations per step, unpreconditioned), in float64;
+* ``image``: our image-domain solver (fixed sparsity, matrix-free PCG with
+  the multigrid preconditioner of ``core.multigrid``, float32, channels in
+  threads, coarse-to-fine);
 * ``texture``: our texture-domain solver on the same photos.
 
 A row ``name@K`` caps the finest level at K iterations. ``iterations`` are
@@ -52,6 +53,10 @@ from core.solver import SolverParams, energy, solve  # noqa: E402
 from core.synthetic import sphere_scene  # noqa: E402
 
 
+#: CG iterations per rho-step of the reference (the paper does not say; our Jacobi default).
+REFERENCE_CG_ITER = 30
+
+
 def make_scene(scale, max_pairs, seed=0):
     h, w = int(round(540 * scale)), int(round(960 * scale))
     sc = sphere_scene(n_views=13, height=h, width=w, texture_size=max(64, int(1024 * scale)),
@@ -86,7 +91,7 @@ def reference_solve(problem, params):
             wr = s * mm_weight(B @ rho[:, c], params.delta)
             A = sp.diags(wd * a * a) + B.T @ sp.diags(wr) @ B
             b = wd * a * d.values[:, c]
-            rho[:, c] = spla.cg(A, b, x0=rho[:, c], maxiter=params.cg_iter, rtol=1e-10)[0]
+            rho[:, c] = spla.cg(A, b, x0=rho[:, c], maxiter=REFERENCE_CG_ITER, rtol=1e-10)[0]
             a_rho = rho[:, c]
             r = a_rho * a - d.values[:, c]
             wd = mm_weight(r, params.delta)
@@ -126,7 +131,9 @@ def run_row(args):
     est = np.concatenate([v[m] for v, m in zip(views, problem.masks)])
     gt = np.concatenate([g[m] for g, m in zip(sc.albedo_views, problem.masks)])
     base = np.concatenate([im[m] for im, m in zip(problem.images, problem.masks)])
-    return {"row": name, "domain": params.domain, "iterations": it, "coarse_iterations": coarse,
+    reference = name == "reference"
+    return {"row": name, "domain": params.domain, "preconditioner": "none" if reference else params.preconditioner,
+            "cg_iter": REFERENCE_CG_ITER if reference else params.cg_iter, "iterations": it, "coarse_iterations": coarse,
             "coarse_iter": params.coarse_iter, "levels": params.levels, "total_s": total,
             "s_per_iter": total / max(it, 1), "final_energy": float(history[-1]),
             "energy_history": [float(e) for e in history], "elapsed_s": elapsed,
@@ -148,6 +155,8 @@ def main(argv=None):
     ap.add_argument("--coarse-iter", type=int, default=SolverParams.coarse_iter,
                     help="iterations at most on each coarse level (our rows)")
     ap.add_argument("--levels", type=int, default=SolverParams.levels, help="pyramid levels (our rows)")
+    ap.add_argument("--preconditioner", default=SolverParams.preconditioner,
+                    help="of our rows' rho-step: auto (multigrid in the image domain), multigrid or jacobi")
     ap.add_argument("--rows", nargs="+", default=["reference", "image", "texture", "texture@5"],
                     help="reference, image, texture; name@K caps the finest level at K iterations")
     ap.add_argument("--json", help="also write the rows here")
@@ -161,7 +170,7 @@ def main(argv=None):
         max_iter = int(iters) if iters else a.max_iter
         params = SolverParams(domain=domain, lam=a.lam, mu=a.mu, delta=a.delta, max_iter=max_iter,
                               min_iter=min(SolverParams.min_iter, max_iter), coarse_iter=a.coarse_iter,
-                              levels=a.levels, tol=a.tol)
+                              levels=a.levels, tol=a.tol, preconditioner=a.preconditioner).resolved()
         with mp.get_context("spawn").Pool(1) as pool:
             row = pool.map(run_row, [(name, a.scale, pairs, params)])[0]
         row.update(lam=a.lam, mu=a.mu, delta=a.delta, tol=a.tol)

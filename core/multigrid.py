@@ -110,17 +110,24 @@ class Hierarchy:
             ops.append((A.astype(dtype).__matmul__, (1.0 / abs(A).sum(axis=1).A1).astype(dtype)))
             A = (P.T @ A @ P).tocsr()
         coarsest = spla.splu((A + sp.diags(1e-9 * A.diagonal())).tocsc())  # guards a block with no data
+        return _VCycle(ops, self.agg, [P.shape[1] for P in self.P], coarsest, dtype)
 
-        def cycle(k, r):
-            """Approximately solve level k's system for the residual r (level 0 is the fine one)."""
-            if k == len(ops):
-                return coarsest.solve(r.astype(np.float64)).astype(dtype)
-            A_k, inv = ops[k]
+
+class _VCycle:
+    """One symmetric V-cycle; a plain object, so that it is freed as soon as the rho-step drops it."""
+
+    def __init__(self, ops, agg, sizes, coarsest, dtype):
+        self.ops, self.agg, self.sizes, self.coarsest, self.dtype = ops, agg, sizes, coarsest, dtype
+
+    def __call__(self, r):
+        down = []
+        for (A, inv), agg, size in zip(self.ops, self.agg, self.sizes):
             z = inv * r
-            agg = self.agg[k]
-            rc = np.bincount(agg, weights=r - A_k(z), minlength=self.P[k].shape[1]).astype(dtype)
-            z += cycle(k + 1, rc)[agg]
-            z += inv * (r - A_k(z))
-            return z
-
-        return lambda r: cycle(0, r)
+            down.append((r, z))
+            r = np.bincount(agg, weights=r - A(z), minlength=size).astype(self.dtype)
+        e = self.coarsest.solve(r.astype(np.float64)).astype(self.dtype)
+        for (A, inv), agg, (r, z) in zip(self.ops[::-1], self.agg[::-1], down[::-1]):
+            z += e[agg]
+            z += inv * (r - A(z))
+            e = z
+        return e

@@ -10,7 +10,9 @@ iteration majorises every Huber term by its quadratic psi_delta at the
 current point, then
 
 1. rho-step: minimises the quadratic majorant, a sparse weighted least
-   squares, by Jacobi-preconditioned CG warm-started from the current rho;
+   squares, by CG warm-started from the current rho, preconditioned by
+   aggregation multigrid in the image domain (:mod:`core.multigrid`) and by
+   Jacobi in the texture domain;
 2. sigma-step: one 9x9 weighted least squares per view and channel, from the
    45 precomputed products of the SH basis.
 
@@ -77,8 +79,14 @@ class SolverParams:
         ``min_iter``, so a warm start cannot stop the loop at once).
     tol : float
         Stop when the relative energy change falls below it.
-    cg_iter : int
-        CG iterations per rho-step.
+    cg_iter : int or None
+        CG iterations per rho-step; None: 10 with the multigrid
+        preconditioner, 30 with Jacobi.
+    preconditioner : {"auto", "multigrid", "jacobi"}
+        Of the rho-step's CG (:mod:`core.multigrid`). "auto" is multigrid in
+        the image domain, where the correspondences make the step stiff, and
+        Jacobi in the texture domain, where a better solved step did not cut
+        the outer iterations (README, "What we measured about the solver").
     gauss_newton : bool
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
@@ -112,7 +120,7 @@ class SolverParams:
     max_iter: int = 50
     min_iter: int = 5
     tol: float = 1e-4
-    cg_iter: int = 30
+    cg_iter: int | None = None
     normalise_correspondences: bool = True
     threads: int = 2
     gauss_newton: bool = False
@@ -122,13 +130,22 @@ class SolverParams:
     coarse_iter: int = 100
     max_texels_per_pixel: float = 2.0
     extrapolate: float = 1.0
-    preconditioner: str = "jacobi"
+    preconditioner: str = "auto"
+
+    def resolved(self) -> "SolverParams":
+        """These parameters with "auto" and None replaced by what they stand for."""
+        pre = self.preconditioner
+        if pre == "auto":
+            pre = "multigrid" if self.domain == "image" else "jacobi"
+        cg = self.cg_iter if self.cg_iter is not None else (10 if pre == "multigrid" else 30)
+        return replace(self, preconditioner=pre, cg_iter=cg)
 
     def check(self):
         if self.domain not in ("texture", "image"):
             raise ValueError(f"solver: domain must be 'texture' or 'image', got {self.domain!r}")
-        if self.preconditioner not in ("jacobi", "multigrid"):
-            raise ValueError(f"solver: preconditioner must be 'jacobi' or 'multigrid', got {self.preconditioner!r}")
+        if self.preconditioner not in ("auto", "jacobi", "multigrid"):
+            raise ValueError("solver: preconditioner must be 'auto', 'jacobi' or 'multigrid', "
+                             f"got {self.preconditioner!r}")
         if self.data_model not in ("interpolate", "splat"):
             raise ValueError(f"solver: data_model must be 'interpolate' or 'splat', got {self.data_model!r}")
         for name in ("lam", "mu", "delta"):
@@ -137,7 +154,7 @@ class SolverParams:
                 raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
         if self.delta <= 0:
             raise ValueError("solver: delta must be > 0")
-        if self.max_iter < 1 or self.cg_iter < 1:
+        if self.max_iter < 1 or (self.cg_iter is not None and self.cg_iter < 1):
             raise ValueError("solver: max_iter and cg_iter must be >= 1")
         if not np.isfinite(self.extrapolate) or self.extrapolate < 0:
             raise ValueError(f"solver: extrapolate must be finite and >= 0, got {self.extrapolate}")
@@ -356,6 +373,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     """
     params = params or SolverParams()
     params.check()
+    params = params.resolved()
     t0 = time.perf_counter()
 
     def report(frac, msg):

@@ -102,8 +102,16 @@ def test_multigrid_solver_lowers_the_energy_faster(stiff, with_uv):
     if not with_uv:
         problem = Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences)
     common = dict(domain="image", lam=5.0, mu=1000.0, max_iter=6, min_iter=6, levels=1)
-    plain = solve(problem, SolverParams(**common, cg_iter=10))
+    plain = solve(problem, SolverParams(**common, cg_iter=10, preconditioner="jacobi"))
     mg = solve(problem, SolverParams(**common, cg_iter=10, preconditioner="multigrid"))
     e = np.asarray(mg.energy)
     assert np.all(np.diff(e) <= 0), np.diff(e)
     assert e[-1] < plain.energy[-1]
+
+
+def test_auto_is_multigrid_in_the_image_domain_only():
+    assert SolverParams(domain="image").resolved().preconditioner == "multigrid"
+    assert SolverParams(domain="image").resolved().cg_iter == 10
+    assert SolverParams(domain="texture").resolved().preconditioner == "jacobi"
+    assert SolverParams(domain="texture").resolved().cg_iter == 30
+    assert SolverParams(domain="image", cg_iter=7, preconditioner="jacobi").resolved().cg_iter == 7

@@ -181,7 +181,7 @@ def test_cancel_and_progress(varying):
 
 @pytest.mark.parametrize("bad", [dict(lam=-1), dict(mu=-0.5), dict(domain="surface"), dict(delta=0),
                                  dict(extrapolate=-1), dict(extrapolate=float("nan")), dict(data_model="nearest"),
-                                 dict(max_texels_per_pixel=-1)])
+                                 dict(max_texels_per_pixel=-1), dict(preconditioner="ilu"), dict(cg_iter=0)])
 def test_bad_params(varying, bad):
     with pytest.raises(ValueError):
         solve(varying.problem, SolverParams(**bad))
