@@ -14,7 +14,7 @@ pixels have UVs: a block then holds the pixels of *all* views that see one
 surface patch, which is what the stiff correspondence rows tie together.
 Blocks of each view's own pixel grid leave that coupling to the smoother
 and help far less (measured on the benchmark sphere at scale 0.5: 40
-iterations reduce the rho-step's error to 0.14 with view blocks, 0.005 with
+iterations reduce the rho-step's error to 0.14 with view blocks, 0.010 with
 surface blocks; 300 Jacobi iterations to 0.04). A symmetric V-cycle with
 l1-Jacobi smoothing (always convergent) and a direct solve on the coarsest
 level preconditions CG.
