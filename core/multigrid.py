@@ -27,7 +27,7 @@ import scipy.sparse.linalg as spla
 
 from .uvlayout import texel_of_uv
 
-__all__ = ["Hierarchy", "surface_grid"]
+__all__ = ["Hierarchy", "block_grid", "surface_grid"]
 
 # Stop coarsening at this many unknowns; that level is factorised.
 COARSEST = 3000
@@ -55,6 +55,21 @@ def surface_grid(uv: np.ndarray, per_block: float = 4.0) -> np.ndarray:
         size *= 2
     rows, cols = cells(2 * size)
     return np.column_stack([np.zeros(n, np.intp), rows, cols])
+
+
+def block_grid(problem, d) -> np.ndarray:
+    """``(sheet, row, col)`` of each unknown of the discretisation ``d`` of ``problem``, for :class:`Hierarchy`.
+
+    Texture domain: the texel grid. Image domain: the texture grid at the
+    pixels' UVs when they have them (surface patches), else each view's own
+    pixel grid.
+    """
+    if d.domain == "texture":
+        return np.column_stack([np.zeros(d.n_unknowns, np.intp), *np.divmod(d.texel_index, problem.texture.size)])
+    if problem.uv is not None:
+        return surface_grid(np.concatenate([uv[m] for uv, m in zip(problem.uv, problem.masks)]))
+    return np.concatenate([np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)])
+                           for i, m in enumerate(problem.masks)]).astype(np.intp)
 
 
 def _blocks(grid):

@@ -45,7 +45,6 @@ import scipy.sparse as sp
 
 from .problem import Problem
 from .bilinear import masked_corners
-from .multigrid import surface_grid
 from .sh import sh_basis, sh_products
 from .uvlayout import bilinear_texels
 
@@ -78,7 +77,6 @@ class Discretization:
     obs_view: np.ndarray | None = None      # (O,) intp view of each observation
     texel_index: np.ndarray | None = None   # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
-    grid: np.ndarray | None = None           # (n, 3) intp: (sheet, row, col) for core.multigrid's blocks
 
     @property
     def n_views(self) -> int:
@@ -232,17 +230,10 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         base.append(w.astype(np.float32))
     B, BT, B2T = _assemble(triplets, n)
     obs = np.arange(n, dtype=np.intp)
-    if problem.uv is not None:
-        # Surface patches: one block holds the pixels of every view that see it.
-        grid = surface_grid(np.concatenate([uv[m] for uv, m in zip(problem.uv, problem.masks)]))
-    else:
-        grid = np.concatenate([np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)])
-                               for i, m in enumerate(problem.masks)]).astype(np.intp)
     return Discretization(
         domain="image", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
         obs_unknown=obs, obs_pixel=obs, obs_weight=np.ones(n, dtype=np.float32),
-        B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy(),
-        grid=grid)
+        B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy())
 
 
 def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: str = "splat") -> Discretization:
@@ -327,8 +318,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         domain="texture", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
         obs_unknown=obs_unknown, obs_pixel=pix_obs, obs_weight=w_obs,
         B=B, BT=BT, B2T=B2T, n_tv=B.shape[0], base=base, rho0=np.zeros((n, values.shape[1]), np.float32),
-        texel_index=texels, obs_matrix=obs_matrix,
-        grid=np.column_stack([np.zeros(n, np.intp), *np.divmod(texels, size)]))
+        texel_index=texels, obs_matrix=obs_matrix)
     # Start from the weighted mean of the observations that see each texel.
     wsum = d.scatter(w_obs.astype(np.float64))
     d.rho0 = np.stack([d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum

@@ -49,7 +49,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .huber import huber_inplace, mm_weight
-from .multigrid import Hierarchy
+from .multigrid import Hierarchy, block_grid
 from .operators import Discretization, image_domain, texture_domain
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, unpack_products
@@ -304,12 +304,13 @@ class _Channel:
             sw = self.s_ft * mm_weight(d.B @ self.rho, self.delta).astype(self.ft)
             B, BT = d.B, d.BT
             matvec = lambda x: data(x) + BT @ (sw * (B @ x))  # noqa: E731
-            if self.hierarchy is not None and d.diagonal_data:
-                precondition = self.hierarchy.preconditioner(matvec, jacobi, sw, self.ft)
-            jacobi = jacobi + d.B2T @ sw
         else:
             matvec = data
-        if self.hierarchy is None or not d.diagonal_data or not d.B.shape[0]:
+        if self.hierarchy is not None:  # only built for a diagonal data term with rows in B
+            precondition = self.hierarchy.preconditioner(matvec, jacobi, sw, self.ft)
+        else:
+            if d.B.shape[0]:
+                jacobi = jacobi + d.B2T @ sw
             precondition = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
         rho = _pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
         e = self.energy(rho=rho)
@@ -424,7 +425,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
         sigma0 = coarse.sigma
     hierarchy = None
     if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
-        hierarchy = Hierarchy(d.grid, d.B, d.BT)
+        hierarchy = Hierarchy(block_grid(problem, d), d.B, d.BT)
     channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
                          None if sigma0 is None else sigma0[:, c], hierarchy) for c in range(problem.channels)]
     pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))

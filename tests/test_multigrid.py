@@ -6,7 +6,7 @@ import scipy.sparse.linalg as spla
 from core.correspondences import find_correspondences
 from core.huber import mm_weight
 from core import multigrid
-from core.multigrid import Hierarchy, surface_grid
+from core.multigrid import Hierarchy, block_grid, surface_grid
 from core.operators import image_domain
 from core.problem import Problem
 from core.sh import DIFFUSE
@@ -52,9 +52,9 @@ def test_surface_blocks_hold_a_few_points_each():
 
 
 def test_multigrid_solves_the_stiff_rho_step_far_better_than_jacobi(stiff):
-    _, d, A, b, D, w = stiff
+    problem, d, A, b, D, w = stiff
     x_star = spla.spsolve(A, b)
-    H = Hierarchy(d.grid, d.B, d.BT)
+    H = Hierarchy(block_grid(problem, d), d.B, d.BT)
     assert len(H.P) >= 2
     A32 = A.astype(np.float32).tocsr()
     mg = H.preconditioner(lambda v: A32 @ v, D.astype(np.float32), w.astype(np.float32), np.float64)
@@ -68,8 +68,8 @@ def test_multigrid_solves_the_stiff_rho_step_far_better_than_jacobi(stiff):
 
 def test_the_v_cycle_is_symmetric_positive_definite(stiff):
     # CG needs it.
-    _, d, A, b, D, w = stiff
-    H = Hierarchy(d.grid, d.B, d.BT)
+    problem, d, A, b, D, w = stiff
+    H = Hierarchy(block_grid(problem, d), d.B, d.BT)
     A32 = A.astype(np.float32).tocsr()
     mg = H.preconditioner(lambda v: A32 @ v, D.astype(np.float32), w.astype(np.float32), np.float64)
     rng = np.random.default_rng(1)
@@ -84,11 +84,11 @@ def test_surface_blocks_beat_view_blocks(stiff, monkeypatch):
     monkeypatch.setattr(multigrid, "COARSEST", 100)
     problem, d, A, b, D, w = stiff
     x_star = spla.spsolve(A, b)
-    view_grid = np.concatenate([np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)])
-                                for i, m in enumerate(problem.masks)])
+    without_uv = Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences)
+    view_grid = block_grid(without_uv, d)
     A32 = A.astype(np.float32).tocsr()
     errs = []
-    for grid in (d.grid, view_grid):
+    for grid in (block_grid(problem, d), view_grid):
         pre = Hierarchy(grid, d.B, d.BT).preconditioner(lambda v: A32 @ v, D.astype(np.float32),
                                                          w.astype(np.float32), np.float64)
         errs.append(_error_after(A, b, x_star, pre, 20))
