@@ -16,6 +16,7 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .cg import pcg
 from .uvlayout import texel_index
 
 __all__ = ["fuse_views", "fill_unseen"]
@@ -324,32 +325,6 @@ def _laplace_system(vals, fixed, dom):
     return free, a, rhs, deg
 
 
-def _cg(a, b, x, diag, max_iter, tol):
-    """Jacobi-preconditioned CG, one right-hand side (column of b) at a time."""
-    inv_d = 1.0 / diag
-    for ch in range(b.shape[1]):
-        xc = np.ascontiguousarray(x[:, ch])
-        bc = np.ascontiguousarray(b[:, ch])
-        r = bc - a @ xc
-        z = inv_d * r
-        p = z.copy()
-        rz = np.dot(r, z)
-        stop = (tol * max(np.linalg.norm(bc), 1e-30)) ** 2
-        for _ in range(max_iter):
-            if np.dot(r, r) <= stop or rz <= 0:
-                break
-            ap = a @ p
-            alpha = rz / np.dot(p, ap)
-            xc += alpha * p
-            r -= alpha * ap
-            np.multiply(inv_d, r, out=z)
-            rz, rz_old = np.dot(r, z), rz
-            p *= rz / rz_old
-            p += z
-        x[:, ch] = xc
-    return x
-
-
 def _upsample(coarse, dom_c, shape, where):
     """Bilinear upsampling by 2 of ``coarse`` at fine flat texels ``where``,
     using only coarse texels in ``dom_c`` (weights renormalised)."""
@@ -408,7 +383,11 @@ def _harmonic(vals, fixed, dom):
     free_c, x_c = _harmonic(vals_c, fixed_c, dom_c)
     vals_c.reshape(-1, vals_c.shape[-1])[free_c] = x_c
     x0 = _upsample(vals_c, dom_c, dom.shape, free)
-    return free, _cg(a, rhs, x0, deg, _CG_MAX_ITER, _CG_TOL)
+    inv_deg = 1.0 / deg
+    for ch in range(rhs.shape[1]):
+        x0[:, ch] = pcg(a.__matmul__, np.ascontiguousarray(rhs[:, ch]), np.ascontiguousarray(x0[:, ch]), inv_deg,
+                        _CG_MAX_ITER, _CG_TOL)
+    return free, x0
 
 
 def _dilate(vals, filled, rings):

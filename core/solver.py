@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from .cg import pcg
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
 from .operators import Discretization, image_domain, texture_domain
@@ -225,35 +226,6 @@ def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu
                                s, delta) for c in range(rho.shape[1]))
 
 
-def _pcg(matvec, b, x, precondition, iters):
-    """Preconditioned CG on a SPD system, warm-started at x; every iteration lowers the quadratic.
-
-    ``precondition`` is the inverse diagonal (an array) or a function.
-    """
-    apply = precondition if callable(precondition) else precondition.__mul__
-    r = b - matvec(x)
-    z = apply(r)
-    p = z.copy()
-    rz = float(np.dot(r, z))
-    bnorm = float(np.linalg.norm(b)) or 1.0
-    for _ in range(iters):
-        if rz <= 0 or np.sqrt(abs(rz)) < 1e-7 * bnorm:
-            break
-        ap = matvec(p)
-        pap = float(np.dot(p, ap))
-        if pap <= 0:
-            break
-        alpha = rz / pap
-        x += alpha * p
-        r -= alpha * ap
-        z = apply(r)
-        rz_new = float(np.dot(r, z))
-        p *= rz_new / rz
-        p += z
-        rz = rz_new
-    return x
-
-
 class _Channel:
     """The MM state of one colour channel."""
 
@@ -312,7 +284,7 @@ class _Channel:
             if d.B.shape[0]:
                 jacobi = jacobi + d.B2T @ sw
             precondition = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
-        rho = _pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
+        rho = pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
         e = self.energy(rho=rho)
         if e <= self.e:
             self.rho, self.e = rho, e
@@ -564,7 +536,7 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
         return np.concatenate([np.where(jacobi > 0, x[:n] / np.maximum(jacobi, 1e-300), 0.0),
                                np.einsum("vij,vj->vi", S_inv, (x[n:] * free).reshape(m, 9)).ravel() * free])
 
-    step = _pcg(matvec, -np.concatenate([g_rho, g_sigma * free]), np.zeros(n + nv), precondition, 2 * ch.cg_iter)
+    step = pcg(matvec, -np.concatenate([g_rho, g_sigma * free]), np.zeros(n + nv), precondition, 2 * ch.cg_iter)
     drho, dsig = step[:n], (step[n:] * free).reshape(m, 9)
     for t in (1.0, 0.5, 0.25, 0.125):
         sigma = ch.sigma + t * dsig

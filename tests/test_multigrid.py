@@ -10,7 +10,8 @@ from core.multigrid import Hierarchy, block_grid, surface_grid
 from core.operators import image_domain
 from core.problem import Problem
 from core.sh import DIFFUSE
-from core.solver import SolverParams, _pcg, solve
+from core.cg import pcg
+from core.solver import SolverParams, solve
 from core.synthetic import sphere_scene
 
 
@@ -39,7 +40,7 @@ def stiff():
 
 def _error_after(A, b, x_star, precondition, iters):
     """A-norm error of PCG from zero after ``iters`` iterations, relative to the start."""
-    x = _pcg(lambda v: A @ v, b, np.zeros_like(b), precondition, iters)
+    x = pcg(lambda v: A @ v, b, np.zeros_like(b), precondition, iters)
     e, e0 = x - x_star, x_star
     return float(np.sqrt(e @ (A @ e) / (e0 @ (A @ e0))))
 
