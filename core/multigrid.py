@@ -83,8 +83,96 @@ def _blocks(grid):
     return agg.ravel(), half[first]
 
 
+class _Pattern:
+    """A fixed CSR pattern of a symmetric level matrix whose values are recomputed at each rho-step."""
+
+    def __init__(self, n, keys):
+        """``keys``: sorted unique ``row * n + col`` of the entries (every diagonal one included)."""
+        self.n = n
+        self.indices = (keys % n).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(keys // n, minlength=n))]).astype(np.int32)
+
+    def matrix(self, data):
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+    @staticmethod
+    def l1_inverse(A, dtype):
+        """``1 / sum_j |A_ij|``, the l1-Jacobi smoother, for a level matrix (every row holds its diagonal)."""
+        return (1.0 / np.add.reduceat(np.abs(A.data), A.indptr[:-1])).astype(dtype)
+
+
+def _sort_keys(keys):
+    """``order`` sorting the int64 ``keys`` >= 0, and ``first``: True where a new key starts in ``keys[order]``.
+
+    Packs each key with its index into one int64 when they fit, since sorting
+    values is 2.4x faster than argsort (measured on 25M keys).
+    """
+    bits = max(int(keys.size).bit_length(), 1)
+    if keys.size and int(keys.max()) < 2 ** (63 - bits):
+        packed = np.sort((keys << bits) | np.arange(keys.size))
+        order, sorted_keys = packed & ((1 << bits) - 1), packed >> bits
+    else:
+        order = np.argsort(keys)
+        sorted_keys = keys[order]
+    first = np.ones(keys.size, dtype=bool)
+    first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+    return order, first, sorted_keys
+
+
+def _gram_pattern(M):
+    """The pattern of ``M^T diag(w) M + diag(e)`` and the fixed linear maps from (w, e) to its values.
+
+    Returns (pattern, U, M2T, upper, lower, diag): the strictly upper values
+    are ``U @ w``, stored at positions ``upper`` and mirrored at ``lower``;
+    the diagonal is ``M2T @ w + e``, at ``diag``.
+    """
+    n = M.shape[1]
+    lengths = np.diff(M.indptr)
+    keys, row, coef = [np.zeros(0, np.int64)], [np.zeros(0, np.int32)], [np.zeros(0)]
+    for L in np.unique(lengths[lengths >= 2]):
+        rows = np.flatnonzero(lengths == L).astype(np.int32)
+        at = M.indptr[rows][:, None] + np.arange(L)
+        cols, vals = M.indices[at].astype(np.int64), M.data[at]
+        for k in range(L):
+            for m in range(k + 1, L):
+                keys.append(np.minimum(cols[:, k], cols[:, m]) * n + np.maximum(cols[:, k], cols[:, m]))
+                row.append(rows)
+                coef.append(vals[:, k] * vals[:, m])
+    # Row p of U sums the contributions of all difference rows to one pair (i < j).
+    order, starts, keys = _sort_keys(np.concatenate(keys))
+    U = sp.csr_matrix((np.concatenate(coef)[order], np.concatenate(row)[order],
+                       np.append(np.flatnonzero(starts), order.size)), shape=(int(starts.sum()), M.shape[0]))
+    upper_keys = keys[starts]
+    ui, uj = np.divmod(upper_keys, n)
+    full = np.concatenate([upper_keys, uj * n + ui, np.arange(n, dtype=np.int64) * (n + 1)])
+    order = np.argsort(full)
+    where = np.empty(full.size, dtype=np.intp)
+    where[order] = np.arange(full.size)
+    nu = upper_keys.size
+    # The diagonal is (M^2)^T w: the transpose of a CSR matrix is a CSC view, multiplied without converting.
+    M2T = sp.csr_matrix((M.data ** 2, M.indices, M.indptr), shape=M.shape).T
+    return _Pattern(n, full[order]), U, M2T, where[:nu], where[nu:2 * nu], where[2 * nu:]
+
+
+def _galerkin_map(pattern: _Pattern, agg, nc):
+    """The pattern of ``P^T A P`` for the aggregation ``agg`` (n -> nc), and where each entry of A goes in it."""
+    rows = np.repeat(np.arange(pattern.n), np.diff(pattern.indptr))
+    order, starts, keys = _sort_keys(agg[rows].astype(np.int64) * nc + agg[pattern.indices])
+    where = np.empty(order.size, dtype=np.intp)
+    where[order] = np.cumsum(starts) - 1
+    return _Pattern(nc, keys[starts]), where
+
+
 class Hierarchy:
     """The fixed aggregation patterns of one discretisation (built once, shared by the channels).
+
+    Every level's matrix has a fixed pattern, and its values are a fixed
+    linear map of the rho-step's weights: the first coarse level's are
+    ``U @ w`` for the (block-crossing) difference rows, each deeper level's a
+    sum of the level above's entries. Rebuilding the levels at each rho-step
+    is then a few sparse products and sums instead of sparse triple
+    products: 0.3 s instead of 2.4 s per step and channel at the paper's
+    size (README, "What we measured about the solver", item 9).
 
     Parameters
     ----------
@@ -95,38 +183,57 @@ class Hierarchy:
     """
 
     def __init__(self, grid, B, BT):
-        self.abs_BT = abs(BT)
-        self.P = []
+        self.abs_BT = sp.csr_matrix((np.abs(BT.data), BT.indices, BT.indptr), shape=BT.shape)
+        self.agg = []
         grid = np.asarray(grid)
         n = grid.shape[0]
+        sizes = []
         while n > COARSEST:
             agg, grid = _blocks(grid)
             nc = grid.shape[0]
             if nc > 0.7 * n:  # blocks no longer shrink the problem
                 break
-            self.P.append(sp.csr_matrix((np.ones(n, np.float64), (np.arange(n), agg)), shape=(n, nc)))
+            self.agg.append(agg)
+            sizes.append(nc)
             n = nc
-        self.agg = [P.indices for P in self.P]
-        if self.P:
-            BP = (B @ self.P[0].astype(np.float32)).astype(np.float64).tocsr()
-            BP.eliminate_zeros()  # rows inside one block
-            self.rows = np.diff(BP.indptr) > 0
-            self.BP = BP[self.rows]
-            self.BPT = self.BP.T.tocsr()
+        self.sizes = sizes
+        if not self.agg:
+            return
+        # B P: B's rows with columns renamed to blocks; entries in one block add up, rows inside one cancel.
+        BP = sp.csr_matrix((B.data.astype(np.float64), self.agg[0][B.indices], B.indptr.copy()),
+                        shape=(B.shape[0], sizes[0]))
+        BP.sum_duplicates()
+        BP.eliminate_zeros()
+        self.rows = np.flatnonzero(np.diff(BP.indptr) > 0)
+        self.first, self.U, self.BP2T, self.upper, self.lower, self.diag = _gram_pattern(BP[self.rows])
+        self.levels = [self.first]
+        self.maps = []
+        for agg, nc in zip(self.agg[1:], sizes[1:]):
+            coarse, where = _galerkin_map(self.levels[-1], agg, nc)
+            self.levels.append(coarse)
+            self.maps.append(where)
+
+    def level_matrices(self, D, w):
+        """The coarse levels' matrices ``P^T A P`` (float64 CSR, finest first) for ``A = diag(D) + B^T diag(w) B``."""
+        w1 = w[self.rows].astype(np.float64)
+        data = np.empty(self.first.indices.size)
+        data[self.upper] = data[self.lower] = self.U @ w1
+        data[self.diag] = self.BP2T @ w1 + np.bincount(self.agg[0], weights=D, minlength=self.sizes[0])
+        out = [self.first.matrix(data)]
+        for coarse, where in zip(self.levels[1:], self.maps):
+            data = np.bincount(where, weights=data, minlength=coarse.indices.size)
+            out.append(coarse.matrix(data))
+        return out
 
     def preconditioner(self, matvec, D, w, dtype=np.float32):
         """``r -> z ~ A^-1 r`` for ``A = diag(D) + B^T diag(w) B``, given as ``matvec``: one symmetric V-cycle."""
         inv0 = (1.0 / np.maximum(D + 2 * (self.abs_BT @ w), 1e-30)).astype(dtype)
-        if not self.P:
+        if not self.agg:
             return inv0.__mul__
-        A = (self.BPT @ sp.diags(w[self.rows].astype(np.float64)) @ self.BP
-             + sp.diags(self.P[0].T @ D.astype(np.float64))).tocsr()
-        ops = [(matvec, inv0)]
-        for P in self.P[1:]:
-            ops.append((A.astype(dtype).__matmul__, (1.0 / abs(A).sum(axis=1).A1).astype(dtype)))
-            A = (P.T @ A @ P).tocsr()
+        *levels, A = self.level_matrices(D, w)
+        ops = [(matvec, inv0)] + [(L.astype(dtype).__matmul__, _Pattern.l1_inverse(L, dtype)) for L in levels]
         coarsest = spla.splu((A + sp.diags(1e-9 * A.diagonal())).tocsc())  # guards a block with no data
-        return _VCycle(ops, self.agg, [P.shape[1] for P in self.P], coarsest, dtype)
+        return _VCycle(ops, self.agg, self.sizes, coarsest, dtype)
 
 
 class _VCycle:

@@ -135,27 +135,23 @@ def _masked_pixels(problem: Problem):
 
 
 def _difference_rows(a, b, coef_b=None):
-    """CSR rows ``x[a] - sum_k coef_b[:, k] x[b[:, k]]`` as (rows, cols, vals) triplets."""
+    """Rows ``x[a] - sum_k coef_b[:, k] x[b[:, k]]`` as (columns, values), each of shape (rows, k + 1)."""
     a = np.asarray(a, dtype=np.intp)
     b = np.asarray(b, dtype=np.intp).reshape(a.size, -1)
     if coef_b is None:
         coef_b = np.ones(b.shape, dtype=np.float32)
-    k = b.shape[1]
-    rows = np.repeat(np.arange(a.size, dtype=np.intp), k + 1)
-    cols = np.concatenate([a[:, None], b], axis=1).ravel()
-    vals = np.concatenate([np.ones((a.size, 1), np.float32), -coef_b.astype(np.float32)], axis=1).ravel()
-    return rows, cols, vals
+    cols = np.concatenate([a[:, None], b], axis=1)
+    vals = np.concatenate([np.ones((a.size, 1), np.float32), -coef_b.astype(np.float32)], axis=1)
+    return cols, vals
 
 
-def _assemble(triplets, n_unknowns):
-    rows, cols, vals, offset = [], [], [], 0
-    for r, c, v, count in triplets:
-        rows.append(r + offset)
-        cols.append(c)
-        vals.append(v)
-        offset += count
-    B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(offset, n_unknowns), dtype=np.float32)
+def _assemble(groups, n_unknowns):
+    """B from groups of difference rows (in order), as CSR built directly, and its transposes."""
+    widths = np.concatenate([np.full(c.shape[0], c.shape[1], np.int64) for c, _ in groups])
+    indptr = np.concatenate([[0], np.cumsum(widths)])
+    B = sp.csr_matrix((np.concatenate([v.ravel() for _, v in groups]),
+                       np.concatenate([c.ravel() for c, _ in groups]), indptr),
+                      shape=(widths.size, n_unknowns), dtype=np.float32)
     B.sum_duplicates()
     B.eliminate_zeros()
     BT = B.T.tocsr()
@@ -194,12 +190,11 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         t = np.full(m.size, -1, dtype=np.intp)
         t[m] = np.arange(offsets[i], offsets[i + 1])
         lut.append(t)
-    triplets = []
+    row_groups = []
     n_tv = 0
     for i in range(problem.n_views):
         a, b, _ = _grid_edges(problem.masks[i])
-        r, c, v = _difference_rows(lut[i][a], lut[i][b])
-        triplets.append((r, c, v, a.size))
+        row_groups.append(_difference_rows(lut[i][a], lut[i][b]))
         n_tv += a.size
     base = [np.ones(n_tv, dtype=np.float32)]
     corr = problem.correspondences
@@ -225,10 +220,9 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
             main_b = ub[np.arange(ub.shape[0]), np.argmax(wb, axis=1)]
             count = np.bincount(np.concatenate([ua, main_b]), minlength=n)
             w = w * 2.0 / (count[ua] + count[main_b])
-        r, c, v = _difference_rows(ua, ub, wb)
-        triplets.append((r, c, v, ua.size))
+        row_groups.append(_difference_rows(ua, ub, wb))
         base.append(w.astype(np.float32))
-    B, BT, B2T = _assemble(triplets, n)
+    B, BT, B2T = _assemble(row_groups, n)
     obs = np.arange(n, dtype=np.intp)
     return Discretization(
         domain="image", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
@@ -299,8 +293,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     ea = np.concatenate([a, seam[:, 0]])
     eb = np.concatenate([b, seam[:, 1]])
     base = np.concatenate([perp / med, np.ones(seam.shape[0])]).astype(np.float32)
-    r, c, v = _difference_rows(lut[ea], lut[eb])
-    B, BT, B2T = _assemble([(r, c, v, ea.size)], n)
+    B, BT, B2T = _assemble([_difference_rows(lut[ea], lut[eb])], n)
 
     order = np.argsort(pix_obs, kind="stable")
     obs_unknown, pix_obs, w_obs = obs_unknown[order], pix_obs[order], w_obs[order]
