@@ -104,9 +104,10 @@ class SolverParams:
         bilinearly from it, sigma as it is).
     threads : int
         Channels solved at once, in threads (the sparse products release the
-        GIL). 3 keeps two cores busy with three channels: 13.0 s per finest
-        iteration at the paper's size on the 2-core machine, against 16.1 s
-        with 2 threads and 25.4 s with 1.
+        GIL). 3 keeps two cores busy with three channels: on the 2-core
+        machine at the paper's size an image-domain iteration took 13.0 s
+        with 3 threads, 16.1 s with 2 and 25.4 s with 1 (README, "What we
+        measured about the solver", item 9).
     extrapolate : float
         After each iteration, try ``rho + extrapolate * (rho - rho_before)``
         and keep it if it lowers the energy (0 never tries): MM creeps along
