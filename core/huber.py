@@ -27,9 +27,16 @@ def huber_inplace(x, delta):
     return a
 
 
-def mm_weight(x0, delta):
-    """Curvature 1 / max(|x0|, delta) of psi_delta(.; x0), so psi = w x^2 / 2 + const."""
-    return 1.0 / np.maximum(np.abs(x0), delta)
+def mm_weight(x0, delta, out=None):
+    """Curvature 1 / max(|x0|, delta) of psi_delta(.; x0), so psi = w x^2 / 2 + const.
+
+    With ``out`` (which may be x0 itself) it is computed there, with no temporaries.
+    """
+    if out is None:
+        return 1.0 / np.maximum(np.abs(x0), delta)
+    np.abs(x0, out=out)
+    np.maximum(out, delta, out=out)
+    return np.divide(1.0, out, out=out)
 
 
 def majorant(x, x0, delta):

@@ -119,6 +119,14 @@ def _sort_keys(keys):
     return order, first, sorted_keys
 
 
+def _distinct(keys):
+    """The sorted distinct ``keys``, and where each key is among them."""
+    order, first, sorted_keys = _sort_keys(keys)
+    where = np.empty(keys.size, dtype=np.intp)
+    where[order] = np.cumsum(first) - 1
+    return sorted_keys[first], where
+
+
 def _gram_pattern(M):
     """The pattern of ``M^T diag(w) M + diag(e)`` and the fixed linear maps from (w, e) to its values.
 
@@ -144,23 +152,18 @@ def _gram_pattern(M):
                        np.append(np.flatnonzero(starts), order.size)), shape=(int(starts.sum()), M.shape[0]))
     upper_keys = keys[starts]
     ui, uj = np.divmod(upper_keys, n)
-    full = np.concatenate([upper_keys, uj * n + ui, np.arange(n, dtype=np.int64) * (n + 1)])
-    order = np.argsort(full)
-    where = np.empty(full.size, dtype=np.intp)
-    where[order] = np.arange(full.size)
+    full, where = _distinct(np.concatenate([upper_keys, uj * n + ui, np.arange(n, dtype=np.int64) * (n + 1)]))
     nu = upper_keys.size
     # The diagonal is (M^2)^T w: the transpose of a CSR matrix is a CSC view, multiplied without converting.
     M2T = sp.csr_matrix((M.data ** 2, M.indices, M.indptr), shape=M.shape).T
-    return _Pattern(n, full[order]), U, M2T, where[:nu], where[nu:2 * nu], where[2 * nu:]
+    return _Pattern(n, full), U, M2T, where[:nu], where[nu:2 * nu], where[2 * nu:]
 
 
 def _galerkin_map(pattern: _Pattern, agg, nc):
     """The pattern of ``P^T A P`` for the aggregation ``agg`` (n -> nc), and where each entry of A goes in it."""
     rows = np.repeat(np.arange(pattern.n), np.diff(pattern.indptr))
-    order, starts, keys = _sort_keys(agg[rows].astype(np.int64) * nc + agg[pattern.indices])
-    where = np.empty(order.size, dtype=np.intp)
-    where[order] = np.cumsum(starts) - 1
-    return _Pattern(nc, keys[starts]), where
+    keys, where = _distinct(agg[rows].astype(np.int64) * nc + agg[pattern.indices])
+    return _Pattern(nc, keys), where
 
 
 class Hierarchy:
@@ -187,28 +190,27 @@ class Hierarchy:
         self.agg = []
         grid = np.asarray(grid)
         n = grid.shape[0]
-        sizes = []
+        self.sizes = []
         while n > COARSEST:
             agg, grid = _blocks(grid)
             nc = grid.shape[0]
             if nc > 0.7 * n:  # blocks no longer shrink the problem
                 break
             self.agg.append(agg)
-            sizes.append(nc)
+            self.sizes.append(nc)
             n = nc
-        self.sizes = sizes
         if not self.agg:
             return
         # B P: B's rows with columns renamed to blocks; entries in one block add up, rows inside one cancel.
         BP = sp.csr_matrix((B.data.astype(np.float64), self.agg[0][B.indices], B.indptr.copy()),
-                           shape=(B.shape[0], sizes[0]))
+                           shape=(B.shape[0], self.sizes[0]))
         BP.sum_duplicates()
         BP.eliminate_zeros()
         self.rows = np.flatnonzero(np.diff(BP.indptr) > 0)
-        self.first, self.U, self.BP2T, self.upper, self.lower, self.diag = _gram_pattern(BP[self.rows])
-        self.levels = [self.first]
+        first, self.U, self.BP2T, self.upper, self.lower, self.diag = _gram_pattern(BP[self.rows])
+        self.levels = [first]
         self.maps = []
-        for agg, nc in zip(self.agg[1:], sizes[1:]):
+        for agg, nc in zip(self.agg[1:], self.sizes[1:]):
             coarse, where = _galerkin_map(self.levels[-1], agg, nc)
             self.levels.append(coarse)
             self.maps.append(where)
@@ -216,10 +218,10 @@ class Hierarchy:
     def level_matrices(self, D, w):
         """The coarse levels' matrices ``P^T A P`` (float64 CSR, finest first) for ``A = diag(D) + B^T diag(w) B``."""
         w1 = w[self.rows].astype(np.float64)
-        data = np.empty(self.first.indices.size)
+        data = np.empty(self.levels[0].indices.size)
         data[self.upper] = data[self.lower] = self.U @ w1
         data[self.diag] = self.BP2T @ w1 + np.bincount(self.agg[0], weights=D, minlength=self.sizes[0])
-        out = [self.first.matrix(data)]
+        out = [self.levels[0].matrix(data)]
         for coarse, where in zip(self.levels[1:], self.maps):
             data = np.bincount(where, weights=data, minlength=coarse.indices.size)
             out.append(coarse.matrix(data))

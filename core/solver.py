@@ -292,11 +292,9 @@ class _Channel:
         else:
             data = lambda x: d.scatter(waa * d.gather(x))  # noqa: E731
         if d.B.shape[0]:
-            # sw = s * mm_weight(B rho), in place in the kept buffers.
-            sw, Bx = self._sw, matvec_into(d.B, self.rho, self._Bx)
-            np.abs(Bx, out=Bx)
-            np.maximum(Bx, self.delta, out=Bx)
-            np.divide(self.s_ft, Bx, out=sw)
+            # sw = s * mm_weight(B rho), in the kept buffers.
+            Bx = matvec_into(d.B, self.rho, self._Bx)
+            sw = np.multiply(self.s_ft, mm_weight(Bx, self.delta, out=Bx), out=self._sw)
             B, BT = d.B, d.BT
 
             def matvec(x):

@@ -44,3 +44,11 @@ def test_inplace_huber_matches_the_definition():
     x = np.linspace(-0.01, 0.01, 1001)
     for dt in (np.float64, np.float32):
         np.testing.assert_allclose(huber_inplace(x.astype(dt), 1e-3), huber(x, 1e-3), rtol=1e-5, atol=1e-9)
+
+
+def test_mm_weight_in_place_matches_the_definition():
+    x = np.linspace(-0.01, 0.01, 1001).astype(np.float32)
+    expected = mm_weight(x, 1e-3)
+    buf = x.copy()
+    assert mm_weight(buf, 1e-3, out=buf) is buf
+    np.testing.assert_array_equal(buf, expected)
