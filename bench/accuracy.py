@@ -16,7 +16,7 @@ For each folder of ``--fixtures`` with a ``scene.json`` and a ``scene.blend``, t
 Columns, per channel R / G / B:
 
 * ``texture RMSE``: the issue's protocol: the albedo texture scaled per channel by the one factor that
-  minimises the RMSE, over the texels seen by a camera inside the UV islands (``core.metrics.scaled_rmse``);
+  minimises the RMSE, over the texels seen by a camera inside the UV islands (``core.evaluate.metrics.scaled_rmse``);
 * ``views RMSE`` (scenes with per-view truth, ``gt_views/``): the paper's literal protocol (section 5.1): the
   m reflectance maps ``views/<camera>.exr`` against the true albedo each pixel saw, one factor per channel
   common to all maps, over the pixels on the mesh (truth coverage A > 0.5).
@@ -37,8 +37,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import numpy as np  # noqa: E402
 
 from bench.headless import ROOT, commit, machine, run_headless  # noqa: E402
-from core.exr import read_exr  # noqa: E402
-from core.metrics import scaled_rmse  # noqa: E402
+from core.io.exr import read_exr  # noqa: E402
+from core.evaluate.metrics import scaled_rmse  # noqa: E402
 
 #: The paper's Table 1 (its method), for our comparable scenes.
 PAPER = {"lambert_sky": ("Lambertian, skydome (Table 1, fig. 1)", [0.07, 0.04, 0.07]),

@@ -5,14 +5,14 @@ Run by hand (not a test)::
     .venv/bin/python bench/solver.py --scale 0.25 --tol 1e-3   # 13 views of 135x240, the stopping rule
     .venv/bin/python bench/solver.py --scale 1             # the paper's size, 13 x 540x960 (slow)
 
-The problem is a sphere seen by 13 perspective cameras (``core.synthetic``),
-with correspondences from ``core.correspondences``. Rows:
+The problem is a sphere seen by 13 perspective cameras (``core.evaluate.synthetic``),
+with correspondences from ``core.geometry.correspondences``. Rows:
 
 * ``reference``: the paper's algorithm as written: each outer iteration
   assembles the normal equations from scratch with scipy.sparse and solves
   them with ``scipy.sparse.linalg.cg`` (30 iterations per step, unpreconditioned), in float64;
 * ``image``: our image-domain solver (fixed sparsity, matrix-free PCG with
-  the multigrid preconditioner of ``core.multigrid``, float32, channels in
+  the multigrid preconditioner of ``core.solve.multigrid``, float32, channels in
   threads, coarse-to-fine);
 * ``texture``: our texture-domain solver on the same photos.
 
@@ -43,14 +43,14 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 
-from core.correspondences import find_correspondences  # noqa: E402
-from core.huber import mm_weight  # noqa: E402
-from core.metrics import scaled_rmse  # noqa: E402
-from core.operators import image_domain  # noqa: E402
-from core.problem import Problem  # noqa: E402
-from core.sh import DIFFUSE, sh_basis  # noqa: E402
-from core.solver import SolverParams, energy, solve  # noqa: E402
-from core.synthetic import sphere_scene  # noqa: E402
+from core.geometry.correspondences import find_correspondences  # noqa: E402
+from core.solve.huber import mm_weight  # noqa: E402
+from core.evaluate.metrics import scaled_rmse  # noqa: E402
+from core.solve.discretization import image_domain  # noqa: E402
+from core.solve.problem import Problem  # noqa: E402
+from core.solve.sh import DIFFUSE, sh_basis  # noqa: E402
+from core.solve.solver import SolverParams, energy, solve  # noqa: E402
+from core.evaluate.synthetic import sphere_scene  # noqa: E402
 
 
 #: CG iterations per rho-step of the reference (the paper does not say; our Jacobi default).

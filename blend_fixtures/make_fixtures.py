@@ -849,7 +849,7 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
                   if view_gt else None),
         cameras=cam_records,
         camera_convention=("matrix_world: Blender camera-to-world (camera looks down -Z, +Y up). K_blender: pixel "
-                           "centres at (c+0.5, r+0.5). K_core/R_core/t_core: core.camera convention (x right, y "
+                           "centres at (c+0.5, r+0.5). K_core/R_core/t_core: core.geometry.camera convention (x right, y "
                            "down, z forward; pixel (r, c) centre at (c, r); world X -> R X + t)."),
         licences=dict(hdri=HDRI_LICENCE, photos=PHOTO_LICENCES),
     )

@@ -20,8 +20,8 @@ import math
 
 import numpy as np
 
-from .core.camera import Camera
-from .errors import DelightError
+from .core.geometry.camera import Camera
+from .core.errors import DelightError
 
 __all__ = ["ASPECT_TOLERANCE", "check_aspect", "intrinsics", "to_core_camera"]
 
@@ -77,7 +77,7 @@ def intrinsics(cam_data, render, width, height):
 
 
 def to_core_camera(cam_obj, scene, width, height, matrix_world=None, scale=(1.0, 1.0)) -> Camera:
-    """Convert a Blender perspective camera to a :class:`core.camera.Camera`.
+    """Convert a Blender perspective camera to a :class:`core.geometry.camera.Camera`.
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ Options::
     --object NAME         the mesh (default: the active object)
     --cameras NAME ...    the cameras (default: all)
     --images DIR          photos named like the cameras, for cameras without one
-    --lambda L|auto  --mu M  --max-iter K   (lambda: auto; the rest: core.solver.SolverParams)
+    --lambda L|auto  --mu M  --max-iter K   (lambda: auto; the rest: core.solve.solver.SolverParams)
     --working-res MP      downscale photos to at most MP megapixels (default 1)
     --texture-size N      N x N albedo texture (default 1024)
     --method texture|image|project   (default texture; project = no delighting)
@@ -111,8 +111,8 @@ def main(argv=None, blend_loaded: bool = False) -> int:
 
     import bpy
 
-    from .core.solver import Cancelled
-    from .errors import DelightError
+    from .core.errors import Cancelled
+    from .core.errors import DelightError
     from .pipeline import run
 
     def fail(msg):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bpy
 
-from .errors import DelightError
+from .core.errors import DelightError
 
 __all__ = ["IMAGE_NODE", "UV_NODE", "FRAME_LABEL", "wire_albedo", "target_materials", "check_editable"]
 

@@ -16,8 +16,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import pipeline
-from .core.solver import Cancelled
-from .errors import DelightError
+from .core.errors import Cancelled
+from .core.errors import DelightError
 from .pipeline import DEFAULTS
 
 __all__ = ["DELIGHT_OT_run", "Job", "METHOD_ITEMS", "CAMERA_ITEMS", "set_status", "get_status"]

@@ -22,18 +22,13 @@ import os
 
 import numpy as np
 
-from .errors import DelightError
+from .core.errors import DelightError
+from .core.io.photos import srgb_to_linear
 
-__all__ = ["EXTENSIONS", "srgb_to_linear", "image_pixels", "find_photo", "downscale"]
+__all__ = ["EXTENSIONS", "image_pixels", "find_photo"]
 
 #: File endings tried in the images folder, in order of preference.
 EXTENSIONS = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".hdr", ".bmp", ".webp", ".tga")
-
-
-def srgb_to_linear(values):
-    """The exact sRGB EOTF (IEC 61966-2-1) of values in [0, 1]."""
-    v = np.asarray(values, dtype=np.float32)
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
 def _image_path(img):
@@ -187,41 +182,3 @@ def find_photo(scene, cam_obj, images_dir=None):
     else:
         looked.append("an images folder (none given)")
     raise DelightError(f"camera {cam_obj.name!r} has no photo: looked at {', '.join(looked)}")
-
-
-def _area_matrix(n_in, n_out):
-    """Sparse ``(n_out, n_in)`` box-filter matrix: output pixel j averages input [j, j+1) * n_in/n_out."""
-    from scipy import sparse
-
-    ratio = n_in / n_out
-    k = int(np.ceil(ratio)) + 1
-    j = np.repeat(np.arange(n_out), k)
-    lo = np.arange(n_out) * ratio
-    i = (np.floor(lo).astype(np.int64)[:, None] + np.arange(k)).ravel()
-    a = np.repeat(lo, k)
-    b = a + ratio
-    overlap = np.clip(np.minimum(i + 1, b) - np.maximum(i, a), 0.0, None) / ratio
-    ok = (overlap > 0) & (i < n_in)
-    return sparse.csr_matrix((overlap[ok], (j[ok], i[ok])), shape=(n_out, n_in))
-
-
-def downscale(photo, max_mp):
-    """Area-average a photo down to at most ``max_mp`` megapixels.
-
-    Returns
-    -------
-    photo : (H', W', 3) float32
-    scale : (sx, sy)
-        ``W'/W`` and ``H'/H`` (1, 1 when the photo already fits).
-    """
-    h, w = photo.shape[:2]
-    if max_mp is None or max_mp <= 0 or w * h <= max_mp * 1e6:
-        return photo, (1.0, 1.0)
-    s = np.sqrt(max_mp * 1e6 / (w * h))
-    w2, h2 = max(1, int(np.floor(w * s))), max(1, int(np.floor(h * s)))
-    ay, ax = _area_matrix(h, h2), _area_matrix(w, w2)
-    c = photo.shape[2]
-    rows = (ay @ photo.reshape(h, w * c)).reshape(h2, w, c)
-    cols = ax @ rows.transpose(1, 0, 2).reshape(w, h2 * c)
-    out = cols.reshape(w2, h2, c).transpose(1, 0, 2)
-    return np.ascontiguousarray(out, dtype=np.float32), (w2 / w, h2 / h)

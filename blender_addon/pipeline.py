@@ -12,7 +12,7 @@ worker thread:
   (:mod:`.previews`). This is the only step that changes anything.
 
 :func:`run` chains the three. A cancel (``cancel()`` returning True) raises
-:class:`core.solver.Cancelled` before :func:`finish`, so the scene and the
+:class:`core.solve.solver.Cancelled` before :func:`finish`, so the scene and the
 output folder are left as they were.
 """
 from __future__ import annotations
@@ -23,90 +23,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .core.solver import Cancelled, SolverParams
-from .core.jsonio import json_value
-from .core.sh import SH_BASIS_NAMES
-from .errors import DelightError
-
-#: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
-DEFAULTS = SolverParams()
-
-__all__ = ["METHODS", "Options", "Prepared", "Computed", "RunReport", "prepare", "compute", "finish", "run",
-           "sample_texture"]
-
-METHODS = ("texture", "image", "project")
+from .core.errors import DelightError
+from .core.io.jsonio import json_value
+from .core.pipeline import DEFAULTS, METHODS, Computed, Options, check_cancel, stage_progress
+from .core.pipeline import compute as _compute
+from .core.solve.sh import SH_BASIS_NAMES
 
 #: The basis of the lighting coefficients in lighting.json (world-space normal n).
 SH_BASIS = list(SH_BASIS_NAMES)
-
-# Share of the progress bar for each stage.
-_SPAN = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
-         "write": (0.95, 1.0)}
-
-
-@dataclass
-class Options:
-    """What to delight and how. ``None`` means "the default" where allowed.
-
-    Parameters
-    ----------
-    object_name : str, optional
-        The mesh object; default the active object.
-    camera_names : list of str, optional
-        The cameras; default all (or the selected ones with ``selected_only``).
-    images_dir : str, optional
-        Folder to look for photos by camera name, when a camera has none.
-    selected_only : bool
-        Use the selected cameras when no names are given.
-    lam, mu, max_iter : float or None, float, int
-        The solver's TV weight, consistency weight (image domain) and outer
-        iterations. ``lam=None`` picks lambda from how much the lighting
-        differs between the photos (:mod:`core.light_variation`).
-    working_res_mp : float
-        Photos are downscaled to at most this many megapixels.
-    texture_size : int
-        N of the N x N albedo texture.
-    method : str
-        ``"texture"`` or ``"image"`` (the solver's two domains), or
-        ``"project"`` (no delighting: the photos fused, for comparison).
-    out_dir : str, optional
-        Output folder; default the .blend's folder.
-    save_blend : bool
-        Save the .blend after wiring the material.
-    overwrite : bool
-        Replace existing output files.
-    """
-
-    object_name: str | None = None
-    camera_names: list | None = None
-    images_dir: str | None = None
-    selected_only: bool = False
-    lam: float | None = None
-    mu: float = DEFAULTS.mu
-    max_iter: int = DEFAULTS.max_iter
-    working_res_mp: float = 1.0
-    texture_size: int = 1024
-    method: str = "texture"
-    out_dir: str | None = None
-    save_blend: bool = False
-    overwrite: bool = False
-
-    def validate(self):
-        """Raise :class:`DelightError` for a bad value."""
-        if self.method not in METHODS:
-            raise DelightError(f"unknown method {self.method!r} (choose one of {', '.join(METHODS)})")
-        for name, v, lo in (("lambda", self.lam, 0.0), ("mu", self.mu, 0.0)):
-            if v is None and name == "lambda":
-                continue
-            if not np.isfinite(v) or v < lo:
-                raise DelightError(f"{name} must be a finite number >= {lo}, got {v}")
-        if int(self.max_iter) < 1:
-            raise DelightError(f"the iteration count must be at least 1, got {self.max_iter}")
-        if not np.isfinite(self.working_res_mp) or self.working_res_mp <= 0:
-            raise DelightError(f"the working resolution must be > 0 megapixels, got {self.working_res_mp}")
-        if not 8 <= int(self.texture_size) <= 16384:
-            raise DelightError(f"the texture size must be between 8 and 16384, got {self.texture_size}")
-
 
 @dataclass
 class Prepared:
@@ -118,19 +42,6 @@ class Prepared:
     out_dir: str
     times: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
-
-
-@dataclass
-class Computed:
-    """The results as arrays (output of :func:`compute`)."""
-
-    albedo: np.ndarray              # (N, N, C) filled texture, row 0 at the top
-    seen: np.ndarray                # (N, N) bool
-    views: list                     # per view (H, W, C) reflectance
-    sigma: np.ndarray | None        # (m, C, 9) lighting, None for "project"
-    energy: list
-    iterations: int
-    info: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -162,23 +73,8 @@ class RunReport:
         """How lambda was set, for messages: "lambda 0.5 (auto: ...)"."""
         if self.lam is None:
             return "no solve"
-        from .core.light_variation import describe_lambda
+        from .core.solve.lambda_choice import describe_lambda
         return describe_lambda(self.lam, self.lighting_variation, self.lambda_auto)
-
-
-def _sub(progress, stage):
-    """A progress callback for one stage, mapped into its share of the bar."""
-    lo, hi = _SPAN[stage]
-
-    def report(fraction=0.0, message=""):
-        if progress is not None:
-            progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), f"{stage}: {message}" if message else stage)
-    return report
-
-
-def _check_cancel(cancel):
-    if cancel is not None and cancel():
-        raise Cancelled("cancelled")
 
 
 def default_out_dir(blend_path: str) -> str:
@@ -202,7 +98,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     """
     import bpy
 
-    from . import bake as _bake
+    from .core.geometry import bake as _bake
     from . import material as _material
     from . import scene as _scene
     from . import write as _write
@@ -215,7 +111,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         raise DelightError("cannot save: the .blend file has never been saved")
 
     t = time.perf_counter()
-    _sub(progress, "gather")(0.0, "reading the scene")
+    stage_progress(progress, "gather")(0.0, "reading the scene")
     inputs = _scene.gather(scene, object_name=options.object_name, camera_names=options.camera_names,
                            images_dir=options.images_dir, working_res_mp=options.working_res_mp,
                            selected_only=options.selected_only)
@@ -224,12 +120,12 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     _write.check_outputs(_write.output_paths(out_dir, inputs.object_name, [v.name for v in inputs.views]),
                          options.overwrite)
     times["gather"] = time.perf_counter() - t
-    _check_cancel(cancel)
+    check_cancel(cancel)
 
     t = time.perf_counter()
-    bakes = _bake.bake_views(scene, inputs, progress=_sub(progress, "bake"), cancel=cancel)
+    bakes = _bake.bake_views(scene, inputs, progress=stage_progress(progress, "bake"), cancel=cancel)
     times["bake"] = time.perf_counter() - t
-    _check_cancel(cancel)
+    check_cancel(cancel)
 
     # A camera that does not see the mesh adds nothing: drop it, but not all.
     warnings, keep = [], []
@@ -247,94 +143,9 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
                     warnings=warnings)
 
 
-def sample_texture(texture: np.ndarray, uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of an (N, N, C) texture (row 0 at v = 1) at (H, W, 2) uv; NaN outside ``mask``."""
-    from .core.bilinear import clamped_corners
-    from .core.uvlayout import texel_of_uv
-
-    n = texture.shape[0]
-    tex = np.nan_to_num(np.asarray(texture, dtype=np.float32)).reshape(n * n, -1)
-    out = np.full(uv.shape[:2] + (tex.shape[1],), np.nan, dtype=np.float32)
-    y, x = texel_of_uv(uv[mask], n)
-    idx, wts = clamped_corners(np.clip(x, 0, n - 1), np.clip(y, 0, n - 1), n, n)
-    out[mask] = np.einsum("kj,kjc->kc", wts, tex[idx])
-    return out
-
-
-def _layout(mesh, n):
-    from .core.uvlayout import texture_layout
-    return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)
-
-
 def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
-    """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
-
-    Raises
-    ------
-    Cancelled
-        ``cancel()`` returned True.
-    ValueError
-        From the core, for inconsistent arrays.
-    """
-    from .core.fusion import fill_unseen, fuse_views
-    from .core.problem import Problem
-    from .core.solver import solve
-
-    opt, inputs, bakes, times = prepared.options, prepared.inputs, prepared.bakes, prepared.times
-    n = int(opt.texture_size)
-    photos = [v.photo for v in inputs.views]
-    masks = [b.mask for b in bakes]
-    uvs = [b.uv for b in bakes]
-    weights = [b.view_weight for b in bakes]
-    solve_progress = _sub(progress, "solve")
-
-    t = time.perf_counter()
-    solve_progress(0.0, "building the problem")
-    layout = _layout(inputs.mesh, n)
-    _check_cancel(cancel)
-    correspondences = None
-    if opt.method == "image":
-        from .core.correspondences import find_correspondences
-        correspondences = find_correspondences([v.camera for v in inputs.views], [b.position for b in bakes],
-                                               masks, [b.normal for b in bakes])
-        _check_cancel(cancel)
-    problem = Problem(images=photos, masks=masks, normals=[b.normal for b in bakes],
-                      correspondences=correspondences, uv=uvs,
-                      texture=layout if opt.method == "texture" else None,
-                      view_weight=weights, names=[v.name for v in inputs.views])
-    result = None
-    lam, variation = opt.lam, None
-    if opt.method != "project":
-        if lam is None:
-            from .core.light_variation import auto_lambda, describe_lambda
-            lam, variation = auto_lambda(problem)
-            solve_progress(0.0, describe_lambda(lam, variation, auto=True))
-        params = SolverParams(domain=opt.method, lam=float(lam), mu=float(opt.mu), max_iter=int(opt.max_iter))
-        result = solve(problem, params, progress=solve_progress, cancel=cancel)
-    times["solve"] = time.perf_counter() - t
-    _check_cancel(cancel)
-
-    t = time.perf_counter()
-    fuse_progress = _sub(progress, "fuse")
-    fuse_progress(0.0, "texture")
-    if opt.method == "texture":
-        seen = np.asarray(result.seen, dtype=bool)
-        albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
-        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
-    else:
-        # Image domain: fuse the per-view reflectance; project: the photos themselves.
-        maps = result.views if result is not None else problem.images
-        fused = fuse_views(maps, masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
-        albedo, seen = fused[..., :-1], fused[..., -1] > 0
-        views = list(maps)
-    times["fuse"] = time.perf_counter() - t
-    fuse_progress(1.0, "done")
-    _check_cancel(cancel)
-    return Computed(albedo=np.asarray(albedo, dtype=np.float32), seen=seen, views=views,
-                    sigma=None if result is None else np.asarray(result.sigma),
-                    energy=[] if result is None else [float(e) for e in result.energy],
-                    iterations=0 if result is None else int(result.iterations),
-                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation))
+    """Build the problem, solve and fuse (:func:`core.pipeline.compute`; safe in a worker thread)."""
+    return _compute(prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel)
 
 
 def _lighting_json(prepared, computed):
@@ -394,7 +205,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
 
     opt, inputs = prepared.options, prepared.inputs
     times = dict(prepared.times)
-    stage = _sub(progress, "write")
+    stage = stage_progress(progress, "write")
     t = time.perf_counter()
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:

@@ -10,14 +10,14 @@ fake user so that they are saved with the file):
   ``project`` run estimates no lighting, so it removes this image.
 
 A re-run replaces the pixels of the same images (no ``.001`` copies). The
-pictures are drawn by :mod:`core.pictures`; only the copy into Blender is here.
+pictures are drawn by :mod:`core.evaluate.pictures`; only the copy into Blender is here.
 """
 from __future__ import annotations
 
 import bpy
 import numpy as np
 
-from .core.pictures import lighting_spheres, strip, to_srgb8
+from .core.evaluate.pictures import lighting_spheres, strip, to_srgb8
 
 __all__ = ["COMPARE", "LIGHTING", "image_names", "update", "find"]
 

@@ -5,61 +5,15 @@ the rest of the run can happen off the main thread.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from . import photos as _photos
+from .core.io.photos import downscale
 from .camera import to_core_camera
-from .errors import DelightError
+from .core.errors import DelightError
+from .core.scene import MeshArrays, SceneInputs, ViewInput
 
-__all__ = ["MeshArrays", "ViewInput", "SceneInputs", "gather", "mesh_arrays"]
-
-
-@dataclass
-class MeshArrays:
-    """The evaluated mesh as loop triangles, in world space.
-
-    Attributes
-    ----------
-    tri_pos : (T, 3, 3) float64
-        World positions of the triangles' corners.
-    tri_uv : (T, 3, 2) float32
-        UV of the corners in the active UV map.
-    tri_vert : (T, 3) intp
-        Vertex indices of the corners (shared corners identify shared edges).
-    uv_map : str
-        Name of the active UV map.
-    tri_normal : (T, 3, 3) float32, optional
-        Unit world-space corner normals: what Cycles shades with (smooth faces
-        interpolate them, flat faces repeat the face normal, custom normals
-        and sharp edges are honoured).
-    """
-
-    tri_pos: np.ndarray
-    tri_uv: np.ndarray
-    tri_vert: np.ndarray
-    uv_map: str
-    tri_normal: np.ndarray | None = None
-
-
-@dataclass
-class ViewInput:
-    """One camera and its photo, at the working resolution."""
-
-    name: str
-    camera: object  # core.camera.Camera on the photo's (possibly downscaled) pixel grid
-    photo: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
-    source: str
-
-
-@dataclass
-class SceneInputs:
-    """Everything the bake and the solver need from the scene."""
-
-    object_name: str
-    mesh: MeshArrays
-    views: list = field(default_factory=list)
+__all__ = ["gather", "mesh_arrays"]
 
 
 def _scene_and_view_layer(context_or_scene):
@@ -245,7 +199,7 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
     for cam in cams:
         photo, source = _photos.find_photo(scene, cam, images_dir)
         h, w = photo.shape[:2]
-        small, scale = _photos.downscale(photo, working_res_mp)
+        small, scale = downscale(photo, working_res_mp)
         camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
                                 scale=scale)
         views.append(ViewInput(name=cam.name, camera=camera, photo=small, source=source))

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .core.exr import write_exr
-from .core.names import safe_name, unique_names
-from .errors import DelightError
+from .core.io.exr import write_exr
+from .core.io.names import safe_name, unique_names
+from .core.errors import DelightError
 
 __all__ = ["OutputPaths", "safe_name", "unique_names", "output_paths", "check_outputs",
            "write_outputs", "make_albedo_image"]

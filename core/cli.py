@@ -6,8 +6,8 @@
                          [--lambda L|auto] [--mu M] [--max-iter K] [--delta D]
 
 Run it from the repository root (or with the root on ``PYTHONPATH``).
-``solve`` loads a problem bundle (:mod:`core.bundle`), runs
-:func:`core.solver.solve` with progress on stderr, and writes into DIR:
+``solve`` loads a problem bundle (:mod:`core.io.bundle`), runs
+:func:`core.solve.solver.solve` with progress on stderr, and writes into DIR:
 
 ``views/<name>.exr``
     Per-view reflectance, RGBA: RGB the reflectance (grey images are
@@ -21,7 +21,7 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``report.json``
     Parameters, iterations, energy history, solve time and output files.
 
-``<name>`` is the view name made safe as a file name (:func:`core.names.unique_names`).
+``<name>`` is the view name made safe as a file name (:func:`core.io.names.unique_names`).
 Files are written atomically, and only after the solver succeeded. Bad input
 (a missing or invalid bundle, bad options) ends with one ``error:`` line on
 stderr and exit status 2; a failed write ends with status 1.
@@ -38,14 +38,14 @@ import time
 
 import numpy as np
 
-from .atomic import atomic_path
-from .bundle import load_bundle
-from .exr import write_exr
-from .jsonio import json_value
-from .light_variation import LAMBDA_FIXED, LAMBDA_VARYING, auto_lambda, describe_lambda
-from .names import unique_names
-from .sh import SH_BASIS_NAMES
-from .solver import SolverParams, solve
+from .io.atomic import atomic_path
+from .io.bundle import load_bundle
+from .io.exr import write_exr
+from .io.jsonio import json_value
+from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, auto_lambda, describe_lambda
+from .io.names import unique_names
+from .solve.sh import SH_BASIS_NAMES
+from .solve.solver import SolverParams, solve
 
 __all__ = ["main", "build_parser", "write_outputs", "lambda_arg", "SH_BASIS"]
 
@@ -74,7 +74,7 @@ def _rgba(values, alpha):
 
 
 def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None) -> dict:
-    """Write a solver :class:`~core.solver.Result` into ``out_dir``.
+    """Write a solver :class:`~core.solve.solver.Result` into ``out_dir``.
 
     See the module docstring for the files. ``out_dir`` and ``out_dir/views``
     are created if needed.
@@ -144,7 +144,7 @@ def _positive(kind, allow_zero):
 
 
 def lambda_arg(text):
-    """argparse type for ``--lambda``: a number >= 0, or ``auto`` (None: chosen by :mod:`core.light_variation`)."""
+    """argparse type for ``--lambda``: a number >= 0, or ``auto`` (None: chosen by :mod:`core.solve.lambda_choice`)."""
     if text.strip().lower() == "auto":
         return None
     return _positive(float, True)(text)
@@ -157,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     s = sub.add_parser(
         "solve", help="solve a problem bundle and write reflectance, albedo and lighting",
-        description="Solve a problem bundle (.npz, see core.bundle) and write views/<name>.exr, "
+        description="Solve a problem bundle (.npz, see core.io.bundle) and write views/<name>.exr, "
                     "albedo.exr (texture domain), lighting.json and report.json into DIR.")
     defaults = SolverParams()
     s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")

@@ -6,12 +6,12 @@ import sys
 import numpy as np
 import pytest
 
-from core.bundle import load_bundle, save_bundle
+from core.io.bundle import load_bundle, save_bundle
 from core.cli import SH_BASIS, main, write_outputs
-from core.names import unique_names
-from core.exr import read_exr
-from core.problem import Correspondences, Problem, TextureLayout
-from core.solver import Result, SolverParams
+from core.io.names import unique_names
+from core.io.exr import read_exr
+from core.solve.problem import Correspondences, Problem, TextureLayout
+from core.solve.solver import Result, SolverParams
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from core.camera import Camera
-from core.correspondences import find_correspondences, neighbour_views
-from core.problem import Problem
+from core.geometry.camera import Camera
+from core.geometry.correspondences import find_correspondences, neighbour_views
+from core.solve.problem import Problem
 
 BIG = (np.zeros(3), 1.0)
 EYE2 = np.array([2.0, -4.6, -0.5])

@@ -4,8 +4,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-import core.exr
-from core.exr import exr_parts, read_exr, write_exr
+import core.io.exr
+from core.io.exr import exr_parts, read_exr, write_exr
 
 
 def _rand(shape, seed=0):
@@ -106,7 +106,7 @@ def test_failed_write_keeps_the_old_file(tmp_path, monkeypatch):
                 fh.write(b"v/1\x01partial")
             raise RuntimeError("disk full")
 
-    monkeypatch.setattr(core.exr.OpenEXR, "File", FailingFile)
+    monkeypatch.setattr(core.io.exr.OpenEXR, "File", FailingFile)
     with pytest.raises(OSError, match="keep.exr.*disk full"):
         write_exr(p, _rand((3, 3, 3), seed=9))
     monkeypatch.undo()

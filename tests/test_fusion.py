@@ -1,9 +1,10 @@
-"""Tests for core.fusion: multi-view fusion into a texture, and hole filling."""
+"""Tests for core.texture.fuse: multi-view fusion into a texture, and hole filling."""
 import numpy as np
 import pytest
 
-import core.fusion as fusion
-from core.fusion import fill_unseen, fuse_views
+import core.texture.fill as fill
+import core.texture.fuse as fusion
+from core.texture import fill_unseen, fuse_views
 
 
 # ---------------------------------------------------------------- helpers
@@ -167,7 +168,7 @@ def ramp_case(n=48):
 @pytest.mark.parametrize("direct_max", [10 ** 9, 20])
 def test_fill_recovers_linear_ramp_in_hole(monkeypatch, direct_max):
     # direct_max=20 forces the coarse-to-fine (multigrid + CG) path.
-    monkeypatch.setattr(fusion, "_DIRECT_MAX", direct_max)
+    monkeypatch.setattr(fill, "_DIRECT_MAX", direct_max)
     tex, seen, inside, hole = ramp_case()
     given = np.where(seen[..., None], tex, np.nan)
     out = fill_unseen(given, seen, inside, margin=0)
@@ -178,7 +179,7 @@ def test_fill_recovers_linear_ramp_in_hole(monkeypatch, direct_max):
 
 
 def test_fill_stays_within_neighbour_range_and_islands_do_not_leak(monkeypatch):
-    monkeypatch.setattr(fusion, "_DIRECT_MAX", 30)
+    monkeypatch.setattr(fill, "_DIRECT_MAX", 30)
     n = 64
     rng = np.random.default_rng(3)
     r, c = np.mgrid[0:n, 0:n]

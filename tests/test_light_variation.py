@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from core.light_variation import (LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD, auto_lambda, choose_lambda,
+from core.solve.lambda_choice import (LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD, auto_lambda, choose_lambda,
                                   describe_lambda, lighting_variation)
-from core.synthetic import sphere_scene
+from core.evaluate.synthetic import sphere_scene
 
 
 def _variation(scene, images=None):

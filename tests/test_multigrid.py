@@ -3,16 +3,16 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from core.correspondences import find_correspondences
-from core.huber import mm_weight
-from core import multigrid
-from core.multigrid import Hierarchy, block_grid, surface_grid
-from core.operators import image_domain
-from core.problem import Problem
-from core.sh import DIFFUSE
-from core.cg import pcg
-from core.solver import SolverParams, solve
-from core.synthetic import sphere_scene
+from core.geometry.correspondences import find_correspondences
+from core.solve.huber import mm_weight
+from core.solve import multigrid
+from core.solve.multigrid import Hierarchy, block_grid, surface_grid
+from core.solve.discretization import image_domain
+from core.solve.problem import Problem
+from core.solve.sh import DIFFUSE
+from core.solve.cg import pcg
+from core.solve.solver import SolverParams, solve
+from core.evaluate.synthetic import sphere_scene
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""core.pictures and core.png: the demo's and the panel's pictures."""
+"""core.evaluate.pictures and core.evaluate.png: the demo's and the panel's pictures."""
 from __future__ import annotations
 
 import struct
@@ -7,9 +7,9 @@ import zlib
 import numpy as np
 import pytest
 
-from core.pictures import energy_plot, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
-from core.png import encode_png
-from core.sh import DIFFUSE
+from core.evaluate.pictures import energy_plot, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
+from core.evaluate.png import encode_png
+from core.solve.sh import DIFFUSE
 
 
 def test_png_bytes_decode_to_the_pixels():

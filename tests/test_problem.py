@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core.problem import Correspondences, Problem
+from core.solve.problem import Correspondences, Problem
 
 
 def _views(m=2, h=6, w=7):

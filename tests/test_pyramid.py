@@ -1,14 +1,14 @@
 import numpy as np
 import pytest
 
-from core import pyramid
-from core.bilinear import masked_corners
-from core.correspondences import find_correspondences
-from core.problem import Correspondences, Problem
-from core.operators import texture_domain
-from core.pyramid import coarsen, upsample_pixels
-from core.uvlayout import uv_of_texel
-from core.synthetic import sphere_scene
+from core.solve import pyramid
+from core.geometry.bilinear import masked_corners
+from core.geometry.correspondences import find_correspondences
+from core.solve.problem import Correspondences, Problem
+from core.solve.discretization import texture_domain
+from core.solve.pyramid import coarsen, upsample_pixels
+from core.geometry.texels import uv_of_texel
+from core.evaluate.synthetic import sphere_scene
 
 
 @pytest.fixture(scope="module")

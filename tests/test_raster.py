@@ -1,8 +1,8 @@
-"""core.raster.raycast against analytic ray casting (the Cycles check is in tests/bpy)."""
+"""core.geometry.raycast.raycast against analytic ray casting (the Cycles check is in tests/bpy)."""
 import numpy as np
 
-from core.camera import Camera
-from core.raster import raycast
+from core.geometry.camera import Camera
+from core.geometry.raycast import raycast
 
 
 def camera(R=np.eye(3), eye=(0.0, 0.0, 0.0), w=40, h=30, f=25.0, skew=0.0):

@@ -1,7 +1,7 @@
 import numpy as np
 
-from core.huber import huber, majorant, mm_weight
-from core.sh import sh_basis, sh_products, unpack_products
+from core.solve.huber import huber, majorant, mm_weight
+from core.solve.sh import sh_basis, sh_products, unpack_products
 
 
 def test_sh_basis_matches_closed_form():
@@ -40,7 +40,7 @@ def test_huber_branches():
 
 
 def test_inplace_huber_matches_the_definition():
-    from core.huber import huber_inplace
+    from core.solve.huber import huber_inplace
     x = np.linspace(-0.01, 0.01, 1001)
     for dt in (np.float64, np.float32):
         np.testing.assert_allclose(huber_inplace(x.astype(dt), 1e-3), huber(x, 1e-3), rtol=1e-5, atol=1e-9)

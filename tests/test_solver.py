@@ -3,13 +3,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from core import pyramid
-from core.correspondences import find_correspondences
-from core.metrics import scaled_rmse
-from core.problem import Correspondences, Problem
-from core.operators import texture_domain
-from core.solver import Cancelled, SolverParams, energy, solve
-from core.synthetic import sphere_scene
+from core.solve import pyramid
+from core.geometry.correspondences import find_correspondences
+from core.evaluate.metrics import scaled_rmse
+from core.solve.problem import Correspondences, Problem
+from core.solve.discretization import texture_domain
+from core.errors import Cancelled
+from core.solve.solver import SolverParams, energy, solve
+from core.evaluate.synthetic import sphere_scene
 
 
 def _view_rmse(result, scene):
@@ -133,7 +134,7 @@ def test_output_scale_convention(varying):
     # Mean shading over the observations is 1, so the albedo is in image units.
     r = solve(varying.problem, SolverParams(domain="texture", lam=0.1, max_iter=10))
     p = varying.problem
-    from core.sh import sh_basis
+    from core.solve.sh import sh_basis
     shade = np.concatenate([sh_basis(n[m], np.float64) @ r.sigma[v].T
                             for v, (n, m) in enumerate(zip(p.normals, p.masks))])
     assert np.all(np.abs(shade.mean(axis=0) - 1) < 0.1)

@@ -1,7 +1,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from core.spmv import matvec_into
+from core.solve.spmv import matvec_into
 
 
 def _matrix():

@@ -1,9 +1,9 @@
-"""Tests for core.uvlayout: texel convention, UV rasterisation, seam pairs."""
+"""Tests for core.geometry.texels: texel convention, UV rasterisation, seam pairs."""
 
 import numpy as np
 import pytest
 
-from core.uvlayout import bilinear_texels, texel_index, texel_of_uv, texture_layout, uv_of_texel
+from core.geometry.texels import bilinear_texels, texel_index, texel_of_uv, texture_layout, uv_of_texel
 
 
 # ---------------------------------------------------------------- meshes

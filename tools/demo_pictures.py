@@ -26,9 +26,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from core.exr import read_exr  # noqa: E402
-from core.pictures import energy_plot, lighting_spheres, strip, to_srgb8  # noqa: E402
-from core.png import write_png  # noqa: E402
+from core.io.exr import read_exr  # noqa: E402
+from core.evaluate.pictures import energy_plot, lighting_spheres, strip, to_srgb8  # noqa: E402
+from core.evaluate.png import write_png  # noqa: E402
 
 FILES = ("before_after.png", "lighting.png", "convergence.png")
 

@@ -36,7 +36,7 @@ bpy = pytest.importorskip("bpy")
 import bmesh  # noqa: E402  (only exists once bpy is imported)
 from mathutils import Vector  # noqa: E402
 
-from core.exr import read_exr, write_exr  # noqa: E402
+from core.io.exr import read_exr, write_exr  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -18,7 +18,7 @@ from conftest import ROOT  # noqa: E402
 
 from bench.accuracy import texture_rmse, views_rmse  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.exr import read_exr  # noqa: E402
+from blender_addon.core.io.exr import read_exr  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

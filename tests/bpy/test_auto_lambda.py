@@ -11,7 +11,7 @@ bpy = pytest.importorskip("bpy")
 from conftest import ROOT  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.light_variation import LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD  # noqa: E402
+from blender_addon.core.solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -15,7 +15,7 @@ bpy = pytest.importorskip("bpy")
 from conftest import ROOT, build_scene  # noqa: E402
 from scene_state import files_under  # noqa: E402
 
-from blender_addon.core.exr import read_exr  # noqa: E402
+from blender_addon.core.io.exr import read_exr  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -185,7 +185,7 @@ def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
         import make_fixtures
     finally:
         sys.path.remove(os.path.join(ROOT, "blend_fixtures"))
-    from blender_addon.core.metrics import scaled_rmse
+    from blender_addon.core.evaluate.metrics import scaled_rmse
 
     info = make_fixtures.generate("lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8,
                                   texture_size=64)

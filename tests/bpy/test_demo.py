@@ -15,16 +15,16 @@ bpy = pytest.importorskip("bpy")
 from conftest import ROOT  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.pictures import BACKGROUND  # noqa: E402
+from blender_addon.core.evaluate.pictures import BACKGROUND  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
 RES, N_CAMS = (96, 72), 4
-GAP = 6        # core.pictures.strip's gap
+GAP = 6        # core.evaluate.pictures.strip's gap
 
 
 def read_png(path):
-    """Decode the PNGs core.png writes (8-bit RGB, filter 0 on every row) into (H, W, 3) uint8."""
+    """Decode the PNGs core.evaluate.png writes (8-bit RGB, filter 0 on every row) into (H, W, 3) uint8."""
     with open(path, "rb") as fh:
         data = fh.read()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"

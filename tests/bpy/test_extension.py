@@ -49,7 +49,7 @@ import scipy, OpenEXR
 mod = sys.modules["bl_ext.user_default.delight"]
 print("RESULT " + json.dumps({
     "run": sorted(res), "addon": mod.__file__, "scipy": scipy.__file__, "openexr": OpenEXR.__file__,
-    "core": sys.modules["bl_ext.user_default.delight.core.solver"].__file__,
+    "core": sys.modules["bl_ext.user_default.delight.core.solve.solver"].__file__,
     "files": sorted(os.listdir(out)),
     "base_color": bpy.data.objects["Target"].material_slots[0].material.node_tree.nodes["Principled BSDF"]
         .inputs["Base Color"].links[0].from_node.name,
@@ -71,9 +71,9 @@ def test_zip_holds_the_add_on_the_real_core_and_the_wheels(extension_zip):
         names = z.namelist()
         manifest = z.read("blender_manifest.toml").decode()
         infos = {i.filename: i for i in z.infolist()}
-    assert {"__init__.py", "operator.py", "pipeline.py", "core/__init__.py", "core/solver.py"} <= set(names)
+    assert {"__init__.py", "operator.py", "pipeline.py", "core/__init__.py", "core/solve/solver.py"} <= set(names)
     # core is real files, not a symlink entry (mode bits 0o120000).
-    assert (infos["core/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
+    assert (infos["core/solve/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
     wheels = [n for n in names if n.startswith("wheels/")]
     assert any(w.startswith("wheels/scipy-") and "cp311" in w and "x86_64" in w for w in wheels)
     assert any(w.startswith("wheels/openexr-") and "cp311" in w for w in wheels)

@@ -13,7 +13,7 @@ from scene_state import files_under, scene_state  # noqa: E402
 
 import blender_addon  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.solver import Cancelled  # noqa: E402
+from blender_addon.core.errors import Cancelled  # noqa: E402
 from blender_addon.operator import Job, get_status  # noqa: E402
 from blender_addon.panel import VIEW3D_PT_delight, operator_settings  # noqa: E402
 
@@ -156,6 +156,6 @@ def test_working_res_downscales_the_photos(tmp_path):
     out = tmp_path / "out"
     assert bpy.ops.delight.run(method="project", texture_size=16, working_res=0.001, out_dir=str(out)) \
         == {"FINISHED"}
-    from blender_addon.core.exr import read_exr
+    from blender_addon.core.io.exr import read_exr
     v, _ = read_exr(out / "views" / "view0_cam.exr")
     assert v.shape[0] * v.shape[1] <= 1000 and np.isclose(v.shape[1] / v.shape[0], 64 / 48, rtol=0.1)

@@ -13,9 +13,9 @@ from conftest import build_scene  # noqa: E402
 from scene_state import files_under, scene_state  # noqa: E402
 
 from blender_addon import pipeline, write  # noqa: E402
-from blender_addon.core.exr import read_exr  # noqa: E402
-from blender_addon.core.solver import Cancelled  # noqa: E402
-from blender_addon.errors import DelightError  # noqa: E402
+from blender_addon.core.io.exr import read_exr  # noqa: E402
+from blender_addon.core.errors import Cancelled  # noqa: E402
+from blender_addon.core.errors import DelightError  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -287,7 +287,7 @@ def test_a_texture_finer_than_the_photos_is_solved_coarser(tmp_path):
 
 
 def test_image_method_fuses_the_solved_views(tmp_path):
-    pytest.importorskip("blender_addon.core.correspondences")
+    pytest.importorskip("blender_addon.core.geometry.correspondences")
     s = build_scene(str(tmp_path))
     rep = pipeline.run(s.scene, options(tmp_path / "out", method="image", max_iter=2))
     assert rep.iterations >= 1
@@ -309,19 +309,6 @@ def test_linked_material_is_refused_before_anything_is_written(tmp_path):
     with pytest.raises(DelightError, match="linked from a library"):
         pipeline.run(s.scene, options(tmp_path / "out"))
     assert scene_state() == before and not (tmp_path / "out").exists()
-
-
-def test_sample_texture_reads_texel_centres_and_interpolates():
-    n = 8
-    tex = np.zeros((n, n, 1), np.float32)
-    tex[..., 0] = np.arange(n)[None, :] + 10 * np.arange(n)[:, None]   # value = col + 10 row
-    r, c = np.array([0, 3, 7]), np.array([0, 5, 2])
-    uv = np.stack([(c + 0.5) / n, 1 - (r + 0.5) / n], axis=1).reshape(1, 3, 2)
-    got = pipeline.sample_texture(tex, uv, np.ones((1, 3), bool))
-    np.testing.assert_allclose(got[0, :, 0], c + 10 * r, atol=1e-5)
-    mid = np.array([[[(2 + 1.0) / n, 1 - (1 + 0.5) / n]]])   # halfway between cols 2 and 3 of row 1
-    assert pipeline.sample_texture(tex, mid, np.ones((1, 1), bool))[0, 0, 0] == pytest.approx(12.5)
-    assert np.isnan(pipeline.sample_texture(tex, uv, np.zeros((1, 3), bool))).all()
 
 
 def test_safe_names():

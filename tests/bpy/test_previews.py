@@ -9,8 +9,8 @@ bpy = pytest.importorskip("bpy")
 from conftest import build_scene  # noqa: E402
 
 from blender_addon import pipeline, previews  # noqa: E402
-from blender_addon.core.pictures import BACKGROUND  # noqa: E402
-from blender_addon.core.solver import Cancelled  # noqa: E402
+from blender_addon.core.evaluate.pictures import BACKGROUND  # noqa: E402
+from blender_addon.core.errors import Cancelled  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -9,11 +9,11 @@ from conftest import (add_camera, add_image_plane, add_uv_sphere, build_scene, d
                       render_cycles, set_background, set_render, synth_photo, write_png)
 
 import bpy
-from blender_addon.bake import bake_views
-from blender_addon.errors import DelightError
-from blender_addon.photos import downscale, srgb_to_linear
+from blender_addon.core.geometry.bake import bake_views
+from blender_addon.core.errors import DelightError
+from blender_addon.core.io.photos import downscale, srgb_to_linear
 from blender_addon.scene import gather
-from core.exr import write_exr
+from core.io.exr import write_exr
 
 pytestmark = pytest.mark.bpy
 
@@ -303,7 +303,7 @@ def test_error_mesh_no_camera_sees(tmp_path):
 
 
 def test_bake_cancel_and_progress(tmp_path):
-    from blender_addon.core.solver import Cancelled  # the add-on's own copy of core
+    from blender_addon.core.errors import Cancelled  # the add-on's own copy of core
 
     s = build_scene(str(tmp_path), n_cameras=3, size=(16, 12))
     inputs = gather(s.scene)

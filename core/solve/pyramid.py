@@ -13,9 +13,9 @@ import warnings
 
 import numpy as np
 
-from .bilinear import masked_corners
+from ..geometry.bilinear import masked_corners
 from .problem import Correspondences, Problem, TextureLayout
-from .uvlayout import bilinear_texels, uv_of_texel
+from ..geometry.texels import bilinear_texels, uv_of_texel
 
 __all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
 

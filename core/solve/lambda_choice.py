@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .sh import sh_basis
-from .uvlayout import texel_index
+from ..geometry.texels import texel_index
 
 __all__ = ["lighting_variation", "choose_lambda", "auto_lambda", "describe_lambda", "VARYING_THRESHOLD",
            "LAMBDA_FIXED", "LAMBDA_VARYING"]
@@ -122,7 +122,7 @@ def choose_lambda(variation: float | None) -> float:
 
 
 def auto_lambda(problem) -> tuple:
-    """``(lambda, variation)`` for a :class:`core.problem.Problem`; variation is None without UVs or overlap."""
+    """``(lambda, variation)`` for a :class:`core.solve.problem.Problem`; variation is None without UVs or overlap."""
     variation = (None if problem.uv is None else
                  lighting_variation(problem.images, problem.masks, problem.normals, problem.uv))
     return choose_lambda(variation), variation

@@ -2,7 +2,7 @@
 
 Both parameterisations of the reflectance share one form, so that the energy,
 the MM loop and the sigma-step are written once (:mod:`core.energy`,
-:mod:`core.solver`):
+:mod:`core.solve.solver`):
 
 * a data term over *observations* ``o``: ``beta_o * phi(rho[u_o] * a_o - I_o)``
   where ``u_o`` is an unknown, ``a_o = sigma . nu`` the shading of the pixel
@@ -44,9 +44,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .problem import Problem
-from .bilinear import masked_corners
+from ..geometry.bilinear import masked_corners
 from .sh import sh_basis, sh_products
-from .uvlayout import bilinear_texels
+from ..geometry.texels import bilinear_texels
 
 __all__ = ["Discretization", "image_domain", "texture_domain"]
 

@@ -1,7 +1,7 @@
 """Small pictures of a run, drawn with NumPy: lighting spheres, side-by-side strips, the energy curve.
 
 Everything returns uint8 sRGB ``(H, W, 3)`` arrays, row 0 at the top, ready
-for :func:`core.png.write_png` or a Blender image. Linear inputs are
+for :func:`core.evaluate.png.write_png` or a Blender image. Linear inputs are
 tone-mapped by :func:`to_srgb8` (clip to [0, white], then the sRGB curve).
 Labels use a built-in 3x5 pixel font (capitals, digits, ``+-._``), so no
 imaging library is needed.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .sh import sh_basis
+from ..solve.sh import sh_basis
 
 __all__ = ["to_srgb8", "sphere_normals", "shade_sphere", "lighting_spheres", "strip", "grid", "energy_plot",
            "draw_text", "text_size", "BACKGROUND"]
@@ -70,7 +70,7 @@ def sphere_normals(size: int):
 def shade_sphere(sh, size: int = 96) -> np.ndarray:
     """Linear shading ``sigma . nu(n)`` of the front-facing sphere, ``(size, size, C)``, NaN outside.
 
-    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.sh`.
+    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.solve.sh`.
     """
     s = np.atleast_2d(np.asarray(sh, dtype=np.float64))
     n, inside = sphere_normals(size)

@@ -1,6 +1,6 @@
 """Bake every view: per pixel, what the ray through it hits on the target mesh.
 
-The rays are cast by :func:`core.raster.raycast`, a vectorised NumPy caster
+The rays are cast by :func:`core.geometry.raycast.raycast`, a vectorised NumPy caster
 over the target's triangles only, so image planes and other objects never
 occlude the mesh. It agrees with a Cycles render of the same camera (see
 tests/bpy/test_scene_bake.py) and is faster than rendering Cycles passes or
@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core.raster import raycast
-from .core.solver import Cancelled
-from .errors import DelightError
+from .raycast import raycast
+from ..errors import Cancelled, DelightError
 
 __all__ = ["ViewBake", "bake_view", "bake_views"]
 
@@ -52,7 +51,7 @@ def _face_normals(mesh, corner_normals):
 
 
 def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
-    """Bake one :class:`core.camera.Camera` against :class:`scene.MeshArrays`."""
+    """Bake one :class:`core.geometry.camera.Camera` against :class:`scene.MeshArrays`."""
     if corner_normals is None:
         corner_normals = _corner_normals(mesh)
     if face_normals is None:
@@ -93,7 +92,7 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     inputs : SceneInputs
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
-        Checked between views; when it returns True, :class:`core.solver.Cancelled`
+        Checked between views; when it returns True, :class:`core.solve.solver.Cancelled`
         is raised.
 
     Raises

@@ -1,11 +1,11 @@
-"""A :class:`~core.problem.Problem` on disk: the problem bundle (.npz).
+"""A :class:`~core.solve.problem.Problem` on disk: the problem bundle (.npz).
 
 A bundle lets pipelines outside Blender feed the solver
 (``python -m core solve BUNDLE --out DIR``), and lets a problem exported from
 Blender be solved or inspected elsewhere. It is a NumPy ``.npz`` archive
 (a zip of ``.npy`` files, written with :func:`numpy.savez_compressed`) that
 holds plain numeric and string arrays only, so it loads with
-``allow_pickle=False``. See :mod:`core.problem` for the conventions (row 0 at
+``allow_pickle=False``. See :mod:`core.solve.problem` for the conventions (row 0 at
 the top, pixel centre of (row r, col c) at (x, y) = (c, r), Blender UV with v
 up, textures with row 0 at v = 1).
 
@@ -59,7 +59,7 @@ A minimal bundle written without this package::
                         image_0=img, mask_0=mask, normal_0=normals)
 
 Values outside the masks are not used (they may be NaN). Validation is the
-:class:`~core.problem.Problem` constructor's; :func:`load_bundle` adds the
+:class:`~core.solve.problem.Problem` constructor's; :func:`load_bundle` adds the
 file name to its messages.
 """
 from __future__ import annotations
@@ -71,7 +71,7 @@ import numpy as np
 
 from .atomic import atomic_path
 from .files import read_magic
-from .problem import Correspondences, Problem, TextureLayout
+from ..solve.problem import Correspondences, Problem, TextureLayout
 
 __all__ = ["FORMAT", "VERSION", "save_bundle", "load_bundle"]
 
@@ -89,7 +89,7 @@ def save_bundle(path, problem: Problem) -> None:
     atomically: a failure leaves any existing file untouched.
     """
     if not isinstance(problem, Problem):
-        raise TypeError(f"save_bundle: expected a core.problem.Problem, got {type(problem).__name__}")
+        raise TypeError(f"save_bundle: expected a core.solve.problem.Problem, got {type(problem).__name__}")
     arrays = {
         "format": np.array(FORMAT),
         "version": np.array(VERSION, dtype=np.int64),

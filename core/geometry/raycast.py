@@ -109,7 +109,7 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
 
     Parameters
     ----------
-    camera : core.camera.Camera
+    camera : core.geometry.camera.Camera
         Pinhole camera; pixel centre ``(row r, col c)`` is at ``(x, y) = (c, r)``.
     tri_pos : (T, 3, 3) array
         World positions of the triangles' corners.

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera
-from .problem import Problem, TextureLayout
-from .sh import sh_basis
-from .uvlayout import bilinear_texels
+from ..geometry.camera import Camera
+from ..solve.problem import Problem, TextureLayout
+from ..solve.sh import sh_basis
+from ..geometry.texels import bilinear_texels
 
 __all__ = ["SyntheticScene", "sphere_scene"]
 

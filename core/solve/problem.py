@@ -21,102 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Correspondences", "TextureLayout", "Problem"]
+from ..geometry.correspondences import Correspondences
+from ..geometry.texels import TextureLayout
+
+__all__ = ["Problem"]
 
 
 def _fail(msg):
     raise ValueError(msg)
-
-
-@dataclass
-class Correspondences:
-    """Pairs of pixels in two views that see the same surface point.
-
-    Pair k links pixel ``pixel_a[k]`` (a flat index ``row * W + col``) of view
-    ``view_a[k]`` with the continuous position ``xy_b[k]`` in view
-    ``view_b[k]``. Integer positions give exact pixel pairs; fractional ones
-    are sub-pixel and are interpolated bilinearly from the masked pixels.
-
-    Parameters
-    ----------
-    view_a, pixel_a, view_b : (K,) int arrays
-    xy_b : (K, 2) float array
-        ``(x, y)`` in view ``view_b``'s continuous pixel coordinates.
-    weight : (K,) float array, optional
-        Non-negative per-pair weights (default 1).
-    """
-
-    view_a: np.ndarray
-    pixel_a: np.ndarray
-    view_b: np.ndarray
-    xy_b: np.ndarray
-    weight: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.view_a = np.asarray(self.view_a, dtype=np.intp).ravel()
-        self.pixel_a = np.asarray(self.pixel_a, dtype=np.intp).ravel()
-        self.view_b = np.asarray(self.view_b, dtype=np.intp).ravel()
-        self.xy_b = np.asarray(self.xy_b, dtype=np.float64).reshape(-1, 2)
-        k = self.view_a.size
-        if not (self.pixel_a.size == self.view_b.size == self.xy_b.shape[0] == k):
-            _fail(f"correspondences: view_a, pixel_a, view_b and xy_b must have the same length "
-                  f"(got {k}, {self.pixel_a.size}, {self.view_b.size}, {self.xy_b.shape[0]})")
-        if self.weight is None:
-            self.weight = np.ones(k, dtype=np.float64)
-        else:
-            self.weight = np.asarray(self.weight, dtype=np.float64).ravel()
-            if self.weight.size != k:
-                _fail(f"correspondences: {self.weight.size} weights for {k} pairs")
-            if not np.all(np.isfinite(self.weight)) or np.any(self.weight < 0):
-                _fail("correspondences: weights must be finite and non-negative")
-        if not np.all(np.isfinite(self.xy_b)):
-            _fail("correspondences: xy_b holds NaN or infinite coordinates")
-
-    def __len__(self):
-        return int(self.view_a.size)
-
-
-@dataclass
-class TextureLayout:
-    """The mesh's UV texture grid, for the texture-domain solver.
-
-    Parameters
-    ----------
-    texel_pos : (N, N, 3) float array
-        World position of each texel centre on the surface, found by
-        rasterising the mesh in UV space; NaN for texels outside every UV
-        island. It defines which texels exist and the surface length of each
-        texel edge (the TV weights).
-    seam_pairs : (K, 2) int array, optional
-        Flat texel indices ``r * N + c`` of neighbours across UV seams, from
-        the mesh edge adjacency.
-    """
-
-    texel_pos: np.ndarray
-    seam_pairs: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.texel_pos = np.asarray(self.texel_pos, dtype=np.float32)
-        p = self.texel_pos
-        if p.ndim != 3 or p.shape[0] != p.shape[1] or p.shape[2] != 3:
-            _fail(f"texture layout: texel_pos must be (N, N, 3), got {p.shape}")
-        if not np.any(self.inside):
-            _fail("texture layout: no texel lies inside a UV island")
-        n2 = p.shape[0] * p.shape[1]
-        if self.seam_pairs is None:
-            self.seam_pairs = np.zeros((0, 2), dtype=np.intp)
-        self.seam_pairs = np.asarray(self.seam_pairs, dtype=np.intp).reshape(-1, 2)
-        if self.seam_pairs.size and (self.seam_pairs.min() < 0 or self.seam_pairs.max() >= n2):
-            _fail(f"texture layout: seam_pairs index out of range [0, {n2})")
-
-    @property
-    def size(self) -> int:
-        return int(self.texel_pos.shape[0])
-
-    @property
-    def inside(self) -> np.ndarray:
-        """(N, N) bool: texels inside a UV island."""
-        return np.all(np.isfinite(self.texel_pos), axis=2)
 
 
 @dataclass

@@ -5,13 +5,13 @@ The energy (eq. var) is, per colour channel,
 ``E(rho, sigma) = sum_o beta_o phi(rho[u_o] sigma_v(o) . nu_o - I_o)
 + lambda sum_TV w_e phi((B rho)_e) + mu sum_corr w_e phi((B rho)_e)``
 
-(see :mod:`core.operators` for the two discretisations). Each outer
+(see :mod:`core.solve.discretization` for the two discretisations). Each outer
 iteration majorises every Huber term by its quadratic psi_delta at the
 current point, then
 
 1. rho-step: minimises the quadratic majorant, a sparse weighted least
    squares, by CG warm-started from the current rho, preconditioned by
-   aggregation multigrid in the image domain (:mod:`core.multigrid`) and by
+   aggregation multigrid in the image domain (:mod:`core.solve.multigrid`) and by
    Jacobi in the texture domain;
 2. sigma-step: one 9x9 weighted least squares per view and channel, from the
    45 precomputed products of the SH basis.
@@ -37,7 +37,7 @@ constraints that flatten the albedo), 4 levels, the splat data model and no
 Gauss-Newton step (both tie or lose on the renders; they are what recovers a
 textured surface exactly in the well-posed synthetic case). lambda is the
 caller's; the add-on and the command lines pick it with
-:mod:`core.light_variation`.
+:mod:`core.solve.lambda_choice`.
 """
 from __future__ import annotations
 
@@ -48,19 +48,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import Cancelled
 from .cg import pcg
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
-from .operators import Discretization, image_domain, texture_domain
+from .discretization import Discretization, image_domain, texture_domain
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, unpack_products
 from .spmv import matvec_into
 
-__all__ = ["SolverParams", "Result", "Cancelled", "solve", "energy"]
-
-
-class Cancelled(Exception):
-    """Raised by :func:`solve` when ``cancel()`` returned True."""
+__all__ = ["SolverParams", "Result", "solve", "energy"]
 
 
 @dataclass
@@ -85,7 +82,7 @@ class SolverParams:
         CG iterations per rho-step; None: 10 with the multigrid
         preconditioner, 30 with Jacobi.
     preconditioner : {"auto", "multigrid", "jacobi"}
-        Of the rho-step's CG (:mod:`core.multigrid`). "auto" is multigrid in
+        Of the rho-step's CG (:mod:`core.solve.multigrid`). "auto" is multigrid in
         the image domain, where the correspondences make the step stiff, and
         Jacobi in the texture domain, where a better solved step did not cut
         the outer iterations (README, "What we measured about the solver").
@@ -93,13 +90,13 @@ class SolverParams:
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
     data_model : {"interpolate", "splat"}
-        Texture domain: how a pixel sees the texels (:mod:`core.operators`).
+        Texture domain: how a pixel sees the texels (:mod:`core.solve.discretization`).
     precision : {"float32", "float64"}
         Working precision of rho and the CG.
     levels, coarse_iter : int
         Both domains: solve first on up to ``levels - 1`` coarser copies (every
         other pixel each, and half the texture in the texture domain; see
-        :func:`core.pyramid.coarsen`), ``coarse_iter`` iterations at most on
+        :func:`core.solve.pyramid.coarsen`), ``coarse_iter`` iterations at most on
         each, and start each level from the one below (rho sampled
         bilinearly from it, sigma as it is).
     threads : int
@@ -211,7 +208,7 @@ def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarr
 
 
 # Elementwise work over the difference rows goes in chunks of this many, so its temporaries stay small
-# and are reused rather than faulted in afresh (see core.spmv).
+# and are reused rather than faulted in afresh (see core.solve.spmv).
 _CHUNK = 1 << 20
 
 
@@ -258,7 +255,7 @@ class _Channel:
         self.extrapolate = params.extrapolate
         self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
-        # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.spmv).
+        # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
         self._Bx = np.empty(d.B.shape[0], self.ft)
         self._sw = np.empty(d.B.shape[0], self.ft)
         # Gathered once per change: the observations' values and shading.
@@ -361,7 +358,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
 
     Parameters
     ----------
-    problem : core.problem.Problem
+    problem : core.solve.problem.Problem
     params : SolverParams
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional

@@ -1,10 +1,10 @@
 """Texture space of a UV-mapped triangle mesh, from plain arrays.
 
 :func:`texture_layout` rasterises the mesh in UV space into a
-:class:`core.problem.TextureLayout` (world position of every texel, and texel
+:class:`core.solve.problem.TextureLayout` (world position of every texel, and texel
 pairs across UV seams). The helpers :func:`texel_of_uv`, :func:`uv_of_texel`,
 :func:`texel_index` and :func:`bilinear_texels` hold the texel convention of
-:mod:`core.problem` in one place, so the solver and the fusion share it:
+:mod:`core.solve.problem` in one place, so the solver and the fusion share it:
 texel ``(r, c)`` of an ``(N, N)`` texture has its centre at
 ``u = (c + 0.5) / N``, ``v = 1 - (r + 0.5) / N`` (row 0 at the top, v up).
 
@@ -14,13 +14,62 @@ Internally, rasterisation works in continuous texel coordinates ``(x, y) =
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .bilinear import masked_corners
 
-from .problem import TextureLayout
 
-__all__ = ["texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout"]
+__all__ = ["TextureLayout", "texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout"]
+
+
+def _fail(msg):
+    raise ValueError(msg)
+
+
+@dataclass
+class TextureLayout:
+    """The mesh's UV texture grid, for the texture-domain solver.
+
+    Parameters
+    ----------
+    texel_pos : (N, N, 3) float array
+        World position of each texel centre on the surface, found by
+        rasterising the mesh in UV space; NaN for texels outside every UV
+        island. It defines which texels exist and the surface length of each
+        texel edge (the TV weights).
+    seam_pairs : (K, 2) int array, optional
+        Flat texel indices ``r * N + c`` of neighbours across UV seams, from
+        the mesh edge adjacency.
+    """
+
+    texel_pos: np.ndarray
+    seam_pairs: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.texel_pos = np.asarray(self.texel_pos, dtype=np.float32)
+        p = self.texel_pos
+        if p.ndim != 3 or p.shape[0] != p.shape[1] or p.shape[2] != 3:
+            _fail(f"texture layout: texel_pos must be (N, N, 3), got {p.shape}")
+        if not np.any(self.inside):
+            _fail("texture layout: no texel lies inside a UV island")
+        n2 = p.shape[0] * p.shape[1]
+        if self.seam_pairs is None:
+            self.seam_pairs = np.zeros((0, 2), dtype=np.intp)
+        self.seam_pairs = np.asarray(self.seam_pairs, dtype=np.intp).reshape(-1, 2)
+        if self.seam_pairs.size and (self.seam_pairs.min() < 0 or self.seam_pairs.max() >= n2):
+            _fail(f"texture layout: seam_pairs index out of range [0, {n2})")
+
+    @property
+    def size(self) -> int:
+        return int(self.texel_pos.shape[0])
+
+    @property
+    def inside(self) -> np.ndarray:
+        """(N, N) bool: texels inside a UV island."""
+        return np.all(np.isfinite(self.texel_pos), axis=2)
+
 
 # Candidate (texel, triangle) pairs processed per block, to bound memory.
 _BLOCK = 1 << 20

@@ -12,12 +12,65 @@ point is really visible at q in view b:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .bilinear import clamped_corners
-from .problem import Correspondences
 
-__all__ = ["find_correspondences", "neighbour_views"]
+__all__ = ["Correspondences", "find_correspondences", "neighbour_views"]
+
+
+def _fail(msg):
+    raise ValueError(msg)
+
+
+@dataclass
+class Correspondences:
+    """Pairs of pixels in two views that see the same surface point.
+
+    Pair k links pixel ``pixel_a[k]`` (a flat index ``row * W + col``) of view
+    ``view_a[k]`` with the continuous position ``xy_b[k]`` in view
+    ``view_b[k]``. Integer positions give exact pixel pairs; fractional ones
+    are sub-pixel and are interpolated bilinearly from the masked pixels.
+
+    Parameters
+    ----------
+    view_a, pixel_a, view_b : (K,) int arrays
+    xy_b : (K, 2) float array
+        ``(x, y)`` in view ``view_b``'s continuous pixel coordinates.
+    weight : (K,) float array, optional
+        Non-negative per-pair weights (default 1).
+    """
+
+    view_a: np.ndarray
+    pixel_a: np.ndarray
+    view_b: np.ndarray
+    xy_b: np.ndarray
+    weight: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.view_a = np.asarray(self.view_a, dtype=np.intp).ravel()
+        self.pixel_a = np.asarray(self.pixel_a, dtype=np.intp).ravel()
+        self.view_b = np.asarray(self.view_b, dtype=np.intp).ravel()
+        self.xy_b = np.asarray(self.xy_b, dtype=np.float64).reshape(-1, 2)
+        k = self.view_a.size
+        if not (self.pixel_a.size == self.view_b.size == self.xy_b.shape[0] == k):
+            _fail(f"correspondences: view_a, pixel_a, view_b and xy_b must have the same length "
+                  f"(got {k}, {self.pixel_a.size}, {self.view_b.size}, {self.xy_b.shape[0]})")
+        if self.weight is None:
+            self.weight = np.ones(k, dtype=np.float64)
+        else:
+            self.weight = np.asarray(self.weight, dtype=np.float64).ravel()
+            if self.weight.size != k:
+                _fail(f"correspondences: {self.weight.size} weights for {k} pairs")
+            if not np.all(np.isfinite(self.weight)) or np.any(self.weight < 0):
+                _fail("correspondences: weights must be finite and non-negative")
+        if not np.all(np.isfinite(self.xy_b)):
+            _fail("correspondences: xy_b holds NaN or infinite coordinates")
+
+    def __len__(self):
+        return int(self.view_a.size)
 
 
 def _view_dirs(cameras, positions, masks):
@@ -55,7 +108,7 @@ def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000
 
     Parameters
     ----------
-    cameras : list of core.camera.Camera
+    cameras : list of core.geometry.camera.Camera
     positions : list of (H, W, 3) arrays
         World hit point of every pixel (anything outside the mask).
     masks : list of (H, W) bool arrays

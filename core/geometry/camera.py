@@ -2,7 +2,7 @@
 
 The core uses the computer-vision convention: camera coordinates have x to
 the right, y down and z forward, and a world point X maps to camera
-coordinates ``R @ X + t``. Pixel coordinates follow :mod:`core.problem`: the
+coordinates ``R @ X + t``. Pixel coordinates follow :mod:`core.solve.problem`: the
 centre of pixel ``(row r, col c)`` is at ``(x, y) = (c, r)``. A Blender
 camera (looking down -Z with +Y up, pixel centres at ``c + 0.5``) converts
 with ``R_cv = diag(1, -1, -1) @ R_blender`` and ``cx_core = cx_blender - 0.5``.

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .uvlayout import texel_of_uv
+from ..geometry.texels import texel_of_uv
 
 __all__ = ["Hierarchy", "block_grid", "surface_grid"]
 

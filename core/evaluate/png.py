@@ -12,7 +12,7 @@ import zlib
 
 import numpy as np
 
-from .atomic import atomic_path
+from ..io.atomic import atomic_path
 
 __all__ = ["encode_png", "write_png"]
 

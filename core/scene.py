@@ -1,0 +1,54 @@
+"""The scene as plain arrays: the target mesh, and each camera with its photo (the pipeline's input)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["MeshArrays", "ViewInput", "SceneInputs"]
+
+
+@dataclass
+class MeshArrays:
+    """The evaluated mesh as loop triangles, in world space.
+
+    Attributes
+    ----------
+    tri_pos : (T, 3, 3) float64
+        World positions of the triangles' corners.
+    tri_uv : (T, 3, 2) float32
+        UV of the corners in the active UV map.
+    tri_vert : (T, 3) intp
+        Vertex indices of the corners (shared corners identify shared edges).
+    uv_map : str
+        Name of the active UV map.
+    tri_normal : (T, 3, 3) float32, optional
+        Unit world-space corner normals: what Cycles shades with (smooth faces
+        interpolate them, flat faces repeat the face normal, custom normals
+        and sharp edges are honoured).
+    """
+
+    tri_pos: np.ndarray
+    tri_uv: np.ndarray
+    tri_vert: np.ndarray
+    uv_map: str
+    tri_normal: np.ndarray | None = None
+
+
+@dataclass
+class ViewInput:
+    """One camera and its photo, at the working resolution."""
+
+    name: str
+    camera: object  # core.geometry.camera.Camera on the photo's (possibly downscaled) pixel grid
+    photo: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
+    source: str
+
+
+@dataclass
+class SceneInputs:
+    """Everything the bake and the solver need from the scene."""
+
+    object_name: str
+    mesh: MeshArrays
+    views: list = field(default_factory=list)

@@ -1,0 +1,12 @@
+"""From the solver's result to a full texture: per-view maps fused onto the texels, unseen texels filled, and the
+texture sampled back at the pixels.
+"""
+from .fuse import fuse_views
+from .fill import fill_unseen
+from .sample import sample_texture
+
+__all__ = [
+    "fuse_views",
+    "fill_unseen",
+    "sample_texture",
+]

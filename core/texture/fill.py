@@ -1,0 +1,224 @@
+"""Texels that no view saw, filled: harmonic (Laplace) interpolation inside each UV island, then a
+few texels of dilation past the island borders (so that mipmaps and filtering do not bleed the
+background in). Used after both the texture-domain solve and the image-domain fusion.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage as ndi
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..solve.cg import pcg
+
+__all__ = ["fill_unseen"]
+
+# Unknowns up to which the Laplace system is factorised directly; above it the solve recurses on a
+# 2x coarser grid and refines with CG (a direct 2D solve grows superlinearly).
+_DIRECT_MAX = 60_000
+_CG_MAX_ITER = 300
+_CG_TOL = 1e-5
+
+
+def _laplace_system(vals, fixed, dom):
+    """5-point Laplace system on the free texels of ``dom``, fixed ones as data.
+
+    Returns
+    -------
+    free : (K,) flat indices of the free texels (dom and not fixed).
+    a : (K, K) CSR matrix, the graph Laplacian of dom restricted to the free
+        texels (five stored entries per row, unused ones 0).
+    rhs : (K, C) sums of the fixed neighbours' values.
+    deg : (K,) the diagonal (number of dom neighbours).
+    """
+    n0, n1 = dom.shape
+    dom_f = dom.ravel()
+    free = np.flatnonzero(dom_f & ~fixed.ravel())
+    k = free.size
+    ids = np.full(dom_f.size, -1, dtype=np.intp)
+    ids[free] = np.arange(k)
+    r, c = np.divmod(free, n1)
+    vflat = vals.reshape(dom_f.size, -1)
+    deg = np.zeros(k)
+    rhs = np.zeros((k, vflat.shape[1]))
+    cols = np.empty((k, 5), dtype=np.intp)
+    data = np.zeros((k, 5))
+    cols[:, 4] = np.arange(k)
+    for d, (ok, off) in enumerate(((r > 0, -n1), (r < n0 - 1, n1), (c > 0, -1), (c < n1 - 1, 1))):
+        q = np.where(ok, free + off, 0)
+        ok &= dom_f[q]
+        j = ids[q]
+        deg += ok
+        u = ok & (j >= 0)
+        cols[:, d] = np.where(u, j, cols[:, 4])
+        data[:, d] = np.where(u, -1.0, 0.0)
+        f = np.flatnonzero(ok & (j < 0))
+        rhs[f] += vflat[q[f]]
+    data[:, 4] = deg
+    a = sp.csr_matrix((data.ravel(), cols.ravel(), np.arange(0, 5 * k + 1, 5)), shape=(k, k))
+    return free, a, rhs, deg
+
+
+def _upsample(coarse, dom_c, shape, where):
+    """Bilinear upsampling by 2 of ``coarse`` at fine flat texels ``where``,
+    using only coarse texels in ``dom_c`` (weights renormalised)."""
+    nc0, nc1 = dom_c.shape
+    r, c = np.divmod(where, shape[1])
+    # Fine centre r sits at r / 2 - 0.25 in coarse texel coordinates.
+    rr, cc = r / 2 - 0.25, c / 2 - 0.25
+    r0, c0 = np.floor(rr).astype(np.intp), np.floor(cc).astype(np.intp)
+    fr, fc = (rr - r0)[:, None], (cc - c0)[:, None]
+    acc = np.zeros((where.size, coarse.shape[-1]))
+    wsum = np.zeros((where.size, 1))
+    for dr, dc, w in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        rq, cq = r0 + dr, c0 + dc
+        ok = (rq >= 0) & (rq < nc0) & (cq >= 0) & (cq < nc1)
+        rq, cq = np.where(ok, rq, 0), np.where(ok, cq, 0)
+        w = w * (ok & dom_c[rq, cq])[:, None]
+        acc += w * coarse[rq, cq]
+        wsum += w
+    return acc / wsum
+
+
+def _harmonic(vals, fixed, dom):
+    """Harmonic interpolant of the fixed texels on the free texels of ``dom``.
+
+    ``vals`` (n0, n1, C) must be 0 off ``fixed``, and every 4-connected
+    component of ``dom`` must hold a fixed texel. Solves directly when small;
+    otherwise solves the 2x coarser problem first (cascadic multigrid),
+    upsamples it as the start and refines with CG.
+
+    Returns
+    -------
+    free : (K,) flat indices of the free texels; x : (K, C) their values.
+    """
+    free, a, rhs, deg = _laplace_system(vals, fixed, dom)
+    if free.size == 0:
+        return free, np.zeros((0, vals.shape[-1]))
+    if free.size <= _DIRECT_MAX or min(dom.shape) < 8:
+        return free, spla.spsolve(a.tocsc(), rhs).reshape(free.size, -1)
+    n0, n1 = dom.shape
+    p0, p1 = n0 + n0 % 2, n1 + n1 % 2
+
+    def blocks(x):
+        if (p0, p1) != (n0, n1):
+            x = np.pad(x, ((0, p0 - n0), (0, p1 - n1)) + ((0, 0),) * (x.ndim - 2))
+        return x.reshape(p0 // 2, 2, p1 // 2, 2, *x.shape[2:])
+
+    def block_sum(x):
+        x = blocks(x)
+        return x[:, 0, :, 0] + x[:, 0, :, 1] + x[:, 1, :, 0] + x[:, 1, :, 1]
+
+    cnt = block_sum(fixed.astype(np.float32))
+    fixed_c = cnt > 0
+    vals_c = block_sum(vals) / np.maximum(cnt, 1)[..., None]      # vals is 0 off fixed
+    dom_c = block_sum(dom.astype(np.float32)) > 0
+    free_c, x_c = _harmonic(vals_c, fixed_c, dom_c)
+    vals_c.reshape(-1, vals_c.shape[-1])[free_c] = x_c
+    x0 = _upsample(vals_c, dom_c, dom.shape, free)
+    inv_deg = 1.0 / deg
+    for ch in range(rhs.shape[1]):
+        x0[:, ch] = pcg(a.__matmul__, np.ascontiguousarray(rhs[:, ch]), np.ascontiguousarray(x0[:, ch]), inv_deg,
+                        _CG_MAX_ITER, _CG_TOL)
+    return free, x0
+
+
+def _dilate(vals, filled, rings):
+    """Grow ``filled`` by ``rings`` texels; each new texel takes the mean of
+    its filled 8-neighbours. Works on the ring texels only."""
+    n0, n1 = filled.shape
+    flat = vals.reshape(n0 * n1, -1)
+    filled = filled.copy()
+    ff = filled.ravel()
+    box = np.ones((3, 3), bool)
+    for _ in range(rings):
+        new = np.flatnonzero((ndi.binary_dilation(filled, box) & ~filled).ravel())
+        if new.size == 0:
+            break
+        r, c = np.divmod(new, n1)
+        cnt = np.zeros(new.size)
+        acc = np.zeros((new.size, flat.shape[1]))
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr == 0 and dc == 0:
+                    continue
+                ok = (r + dr >= 0) & (r + dr < n0) & (c + dc >= 0) & (c + dc < n1)
+                q = np.where(ok, new + dr * n1 + dc, 0)
+                ok &= ff[q]
+                cnt += ok
+                acc += ok[:, None] * flat[q]
+        flat[new] = acc / cnt[:, None]
+        ff[new] = True
+    return vals
+
+
+def fill_unseen(texture, seen, inside, margin=4):
+    """Fill the texels that no view saw.
+
+    Inside each UV island (4-connected component of ``inside | seen``), the
+    unseen texels take the harmonic interpolant of the seen ones (Laplace
+    equation, seen texels fixed, no flux across the island border), so a
+    linear ramp is recovered exactly. Islands without any seen texel take the
+    mean of all seen texels. Then ``margin`` rings of texels past the islands
+    take the mean of their filled neighbours, so that mipmaps show no seams.
+    Everything else is 0.
+
+    Parameters
+    ----------
+    texture : (N, N, C) or (N, N) array
+        Values; only the seen texels are read (others may be NaN).
+    seen : (N, N) bool array
+        Texels with data; their values must be finite and are kept.
+    inside : (N, N) bool array
+        Texels inside UV islands.
+    margin : int, optional
+        Rings of dilation past the islands (default 4).
+
+    Returns
+    -------
+    (N, N, C) or (N, N) float32 array, like ``texture``.
+
+    Raises
+    ------
+    ValueError
+        On shape mismatch, non-finite seen values, a negative margin, or
+        when no texel is seen.
+    """
+    tex = np.asarray(texture)
+    flat_in = tex.ndim == 2
+    if flat_in:
+        tex = tex[..., None]
+    if tex.ndim != 3 or tex.shape[0] != tex.shape[1]:
+        raise ValueError(f"fill_unseen: texture must be (N, N, C) or (N, N), got {np.shape(texture)}")
+    n = tex.shape[0]
+    seen = np.asarray(seen, dtype=bool)
+    inside = np.asarray(inside, dtype=bool)
+    for what, a in (("seen", seen), ("inside", inside)):
+        if a.shape != (n, n):
+            raise ValueError(f"fill_unseen: {what} must be ({n}, {n}) like the texture, got {a.shape}")
+    if isinstance(margin, bool) or not isinstance(margin, (int, np.integer)) or margin < 0:
+        raise ValueError(f"fill_unseen: margin must be an integer >= 0, got {margin!r}")
+    if not seen.any():
+        raise ValueError("fill_unseen: no texel is seen, nothing to fill from")
+    c = tex.shape[2]
+    idx = np.flatnonzero(seen)
+    data = tex.reshape(n * n, c)[idx].astype(np.float64)
+    bad = ~np.isfinite(data).all(axis=1)
+    if bad.any():
+        r, col = divmod(int(idx[np.argmax(bad)]), n)
+        raise ValueError(f"fill_unseen: seen texel (row {r}, col {col}) is NaN or infinite")
+    vals = np.zeros((n, n, c))
+    flat = vals.reshape(n * n, c)
+    flat[idx] = data
+    dom = inside | seen
+    labels, nlab = ndi.label(dom)
+    has_seen = np.bincount(labels.ravel()[idx], minlength=nlab + 1) > 0
+    has_seen[0] = False
+    orphan = dom & ~has_seen[labels]
+    free, x = _harmonic(vals, seen, dom & ~orphan)
+    flat[free] = x
+    flat[np.flatnonzero(orphan)] = data.mean(axis=0)
+    vals = _dilate(vals, dom, margin)
+    out = vals.astype(np.float32)
+    return out[..., 0] if flat_in else out
