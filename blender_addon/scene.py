@@ -40,19 +40,59 @@ def _depsgraph(scene, view_layer):
     return dg
 
 
+def _is_image_plane(obj, cameras):
+    """A photo's image plane (Photogrammetry Importer), never a target."""
+    if obj.name.endswith("_image_plane"):
+        return True
+    parent = obj.parent
+    return parent is not None and parent in cameras
+
+
+def _cameras_seeing(scene, obj, cameras):
+    """How many of ``cameras`` have the centre of ``obj``'s bounding box inside their frame."""
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+    centre = sum(corners, Vector((0.0, 0.0, 0.0))) / 8.0
+    seen = 0
+    for cam in cameras:
+        x, y, z = world_to_camera_view(scene, cam, centre)
+        seen += int(z > 0 and 0.0 <= x <= 1.0 and 0.0 <= y <= 1.0)
+    return seen
+
+
+def _seen_mesh(scene, view_layer):
+    """The one mesh that the scene's cameras look at, when there is exactly one best candidate."""
+    cameras = [o for o in scene.objects if o.type == "CAMERA"]
+    meshes = [o for o in scene.objects if o.type == "MESH" and not _is_image_plane(o, cameras)
+              and len(o.data.polygons)]
+    if not meshes:
+        raise DelightError(f"scene {scene.name!r} has no mesh to delight")
+    if len(meshes) == 1:
+        return meshes[0]
+    counts = sorted(((_cameras_seeing(scene, o, cameras), o.name) for o in meshes), reverse=True)
+    if counts[0][0] > 0 and counts[0][0] > counts[1][0]:
+        return scene.objects[counts[0][1]]
+    names = ", ".join(repr(n) for _, n in counts[:8]) + (" ..." if len(counts) > 8 else "")
+    raise DelightError(f"several meshes could be the target ({names}): name one (--object NAME on the command "
+                       "line, the Object field in the panel) or make it the active object")
+
+
 def _target(scene, view_layer, object_name):
     if object_name:
         obj = scene.objects.get(object_name)
         if obj is None:
             raise DelightError(f"no object named {object_name!r} in scene {scene.name!r}")
     else:
+        # Photogrammetry importers leave a camera active: fall back to the mesh the cameras see.
         obj = view_layer.objects.active
-        if obj is None:
-            raise DelightError("no mesh to delight: make the mesh the active object or name it")
+        if obj is None or obj.type != "MESH":
+            obj = _seen_mesh(scene, view_layer)
     if obj.type != "MESH":
         raise DelightError(f"object {obj.name!r} is a {obj.type.lower()}, not a mesh")
     if not obj.data.uv_layers:
-        raise DelightError(f"mesh {obj.name!r} has no UV map: unwrap it first")
+        raise DelightError(f"mesh {obj.name!r} has no UV map: unwrap it first (UV > Smart UV Project)")
     return obj
 
 

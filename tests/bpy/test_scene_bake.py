@@ -229,8 +229,30 @@ def _expect_error(match, fn, *args, **kw):
 
 def test_error_no_mesh_and_not_a_mesh(tmp_path):
     s = build_scene(str(tmp_path), n_cameras=1, size=(16, 12))
+    bpy.data.objects.remove(s.obj)
     bpy.context.view_layer.objects.active = None
-    _expect_error("no mesh to delight", gather, s.scene)
+    _expect_error("has no mesh to delight", gather, s.scene)
+
+
+def test_the_mesh_the_cameras_see_is_found(tmp_path):
+    # As Photogrammetry Importer leaves a scene: a camera active, image planes beside the mesh.
+    s = build_scene(str(tmp_path), n_cameras=3, size=(16, 12), photo="plane")
+    far = add_uv_sphere("Unseen", location=(0.0, 0.0, 60.0))
+    bpy.context.view_layer.update()
+    bpy.context.view_layer.objects.active = s.cameras[0]
+    assert gather(s.scene).object_name == "Target"
+    bpy.context.view_layer.objects.active = None
+    assert gather(s.scene).object_name == "Target"
+    # Two meshes in every camera's view: no guess, the candidates are named.
+    far.location = (0.0, 0.0, 0.2)
+    bpy.context.view_layer.update()
+    msg = _expect_error("several meshes could be the target", gather, s.scene)
+    assert "'Target'" in msg and "'Unseen'" in msg and "--object NAME" in msg
+    assert "_image_plane" not in msg
+
+
+def test_named_object_errors(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=1, size=(16, 12))
     _expect_error("no object named 'Nope'", gather, s.scene, object_name="Nope")
     _expect_error("'view0_cam' is a camera, not a mesh", gather, s.scene, object_name="view0_cam")
 
