@@ -8,10 +8,12 @@ Where a photo is looked for, in order:
 3. a file in a folder given by the user, whose name (without extension)
    matches the camera's name, or its stem without ``_cam``.
 
-Decoding: for 8-bit images ``Image.pixels`` holds the sRGB codes / 255 whatever
-the colour-space setting, so we apply the exact sRGB EOTF (photos are sRGB).
-Float images (EXR, HDR, 16-bit) come out of ``Image.pixels`` already
-scene-linear.
+Decoding goes through Blender's colour management, so the image's colour space
+(the user's choice, shown in the Image Editor) is respected and every photo ends
+up in the file's linear working space: float images (EXR, HDR, 16-bit) come out
+of ``Image.pixels`` already converted; for 8-bit images ``Image.pixels`` holds the
+raw codes / 255 whatever the colour space, so Blender converts them by writing a
+float EXR into a temporary folder (:func:`_byte_image_linear`).
 
 Nothing is left changed: an image loaded from the folder is removed after
 reading, and pixel buffers we caused to load are freed again.
@@ -23,7 +25,7 @@ import os
 import numpy as np
 
 from .core.errors import DelightError
-from .core.io.photos import srgb_to_linear
+from .core.io.exr import read_exr
 
 __all__ = ["EXTENSIONS", "image_pixels", "find_photo"]
 
@@ -37,6 +39,39 @@ def _image_path(img):
     if img.packed_file is not None:
         return f"{img.filepath or img.name} (packed)"
     return bpy.path.abspath(img.filepath, library=img.library) if img.filepath else "(no file)"
+
+
+def working_space():
+    """Name of the linear colour space Blender works in (Blender 4.x has only Linear Rec.709)."""
+    import bpy
+
+    colorspace = getattr(bpy.data, "colorspace", None)
+    return getattr(colorspace, "working_space", None) or "Linear Rec.709"
+
+
+def _byte_image_linear(img):
+    """An 8-bit image as (H, W, 3) float32 in the working space, row 0 at the top, converted by Blender."""
+    import tempfile
+
+    import bpy
+
+    scene = bpy.data.scenes.new("delight colour conversion")
+    try:
+        settings = scene.render.image_settings
+        settings.file_format, settings.color_depth, settings.color_mode = "OPEN_EXR", "32", "RGBA"
+        if getattr(settings, "has_linear_colorspace", False):
+            settings.color_management = "OVERRIDE"
+            settings.linear_colorspace_settings.name = working_space()
+        with tempfile.TemporaryDirectory(prefix="delight_colour_") as tmp:
+            path = os.path.join(tmp, "photo.exr")
+            img.save_render(path, scene=scene)
+            rgba = read_exr(path)[0]
+    finally:
+        bpy.data.scenes.remove(scene)
+    # save_render premultiplies by alpha; a photo's colour is wanted straight.
+    alpha = rgba[..., 3:4]
+    rgb = np.where(alpha > 0, rgba[..., :3] / np.where(alpha > 0, alpha, 1.0), 0.0)
+    return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
 def image_pixels(img, camera_name):
@@ -55,25 +90,29 @@ def image_pixels(img, camera_name):
             raise DelightError(f"camera {camera_name!r}: cannot read its photo {img.name!r} from "
                                f"{_image_path(img)} (missing or unreadable file)")
         ch = img.channels
-        flat = np.empty(w * h * ch, dtype=np.float32)
-        img.pixels.foreach_get(flat)
         is_float = img.is_float
+        rgb = None
+        if is_float:
+            flat = np.empty(w * h * ch, dtype=np.float32)
+            img.pixels.foreach_get(flat)
+        else:
+            rgb = _byte_image_linear(img)
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
+    if rgb is not None:
+        return rgb
     px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
     if ch >= 3:
         rgb = px[:, :, :3]
     else:  # grey (+ alpha)
         rgb = np.repeat(px[:, :, :1], 3, axis=2)
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
-    if is_float:
-        bad = ~np.isfinite(rgb).all(axis=2)
-        if bad.any():
-            raise DelightError(f"camera {camera_name!r}: its photo {img.name!r} ({_image_path(img)}) has "
-                               f"{int(bad.sum())} NaN or infinite pixels")
-        return rgb
-    return srgb_to_linear(rgb)
+    bad = ~np.isfinite(rgb).all(axis=2)
+    if bad.any():
+        raise DelightError(f"camera {camera_name!r}: its photo {img.name!r} ({_image_path(img)}) has "
+                           f"{int(bad.sum())} NaN or infinite pixels")
+    return rgb
 
 
 def _from_background(cam_obj):

@@ -129,7 +129,7 @@ def test_mesh_arrays_are_evaluated_world_space():
 
 # --- photos -----------------------------------------------------------------------------------------
 
-def test_png_photo_is_decoded_from_srgb(tmp_path):
+def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
     scene = set_render(16, 12)
     obj = add_uv_sphere()
     bpy.context.view_layer.objects.active = obj
@@ -139,13 +139,20 @@ def test_png_photo_is_decoded_from_srgb(tmp_path):
     codes[5, 7] = (4, 100, 250)
     path = write_png(str(tmp_path / "p.png"), codes)
     img = bpy.data.images.load(path)
-    img.colorspace_settings.name = "Non-Color"  # Image.pixels gives the codes whatever this says
     set_background(cam, img)
+    images_before = len(bpy.data.images)
+    scenes_before = len(bpy.data.scenes)
+    assert img.colorspace_settings.name == "sRGB"
     photo = gather(scene).views[0].photo
+    assert len(bpy.data.images) == images_before and len(bpy.data.scenes) == scenes_before
     assert photo.dtype == np.float32 and photo.shape == (12, 16, 3)
     assert abs(photo[6, 3, 0] - 0.5029) < 1e-3  # code 188 is linear 0.5029
-    np.testing.assert_allclose(photo, srgb_to_linear(codes / 255.0), atol=1e-6)
-    np.testing.assert_allclose(photo[0, 0], [1.0, 0.0, 0.0030353], atol=1e-6)
+    np.testing.assert_allclose(photo, srgb_to_linear(codes / 255.0), rtol=1e-4, atol=1e-5)
+    # The user's choice of colour space is respected: Non-Color means the codes are the values.
+    img.colorspace_settings.name = "Non-Color"
+    np.testing.assert_allclose(gather(scene).views[0].photo, codes / 255.0, atol=2e-5)
+    img.colorspace_settings.name = "sRGB"
+    np.testing.assert_allclose(photo[0, 0], [1.0, 0.0, 0.0030353], rtol=1e-4, atol=1e-5)
 
 
 def test_photo_sources_background_plane_and_folder(tmp_path):
