@@ -115,11 +115,46 @@ def image_pixels(img, camera_name):
     return rgb
 
 
-def _from_background(cam_obj):
+def _sequence_frame_path(scene, bg):
+    """The file of an image-sequence background at the scene's current frame, as the viewport shows it."""
+    import bpy
+
+    img, user = bg.image, bg.image_user
+    # As Blender's BKE_image_user_frame_get maps the scene frame to a file of the sequence.
+    frame, n = scene.frame_current - user.frame_start + 1, user.frame_duration
+    if n > 0:
+        frame = (frame - 1) % n + 1 if user.use_cyclic else min(max(frame, 0), n)
+    kept = user.frame_current
+    try:
+        user.frame_current = frame + user.frame_offset
+        path = img.filepath_from_user(image_user=user)
+    finally:
+        user.frame_current = kept
+    return bpy.path.abspath(path, library=img.library)
+
+
+def _from_background(scene, cam_obj):
+    """The camera's background photo: an Image, or the path of one frame of an image sequence."""
     bgs = cam_obj.data.background_images
-    if len(bgs) and bgs[0].source == "IMAGE" and bgs[0].image is not None:
-        return bgs[0].image
-    return None
+    if not len(bgs):
+        return None
+    bg = bgs[0]
+    if bg.source == "MOVIE_CLIP":
+        if bg.clip is None:
+            return None
+        raise DelightError(f"camera {cam_obj.name!r}: its background is the movie clip {bg.clip.name!r}, one "
+                           "camera for many photos (Photogrammetry Importer's 'animated camera'); Delight needs "
+                           "one camera per photo: re-import without the animated camera option")
+    img = bg.image
+    if img is None:
+        return None
+    if img.source == "MOVIE":
+        raise DelightError(f"camera {cam_obj.name!r}: its background {img.name!r} is a movie, which Delight "
+                           "cannot read frame by frame: export the frames as images (an image sequence or a "
+                           "folder of photos named like the cameras)")
+    if img.source == "SEQUENCE":
+        return _sequence_frame_path(scene, bg)
+    return img
 
 
 def _plane_names(cam_name):
@@ -169,13 +204,16 @@ def _from_folder(images_dir, cam_name):
     return None
 
 
-def _load_file(path, camera_name):
-    """Read an image file through Blender, leaving ``bpy.data.images`` as it was."""
+def _load_file(path, camera_name, check_existing=True):
+    """Read an image file through Blender, leaving ``bpy.data.images`` as it was.
+
+    ``check_existing=False`` for one frame of a sequence, whose datablock holds another frame.
+    """
     import bpy
 
     before = set(bpy.data.images)
     try:
-        img = bpy.data.images.load(path, check_existing=True)
+        img = bpy.data.images.load(path, check_existing=check_existing)
     except RuntimeError as exc:
         raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
     try:
@@ -200,7 +238,9 @@ def find_photo(scene, cam_obj, images_dir=None):
     DelightError
         No photo in any of the places (they are named), or it cannot be read.
     """
-    img = _from_background(cam_obj)
+    img = _from_background(scene, cam_obj)
+    if isinstance(img, str):
+        return _load_file(img, cam_obj.name, check_existing=False), f"background image sequence frame {img}"
     if img is not None:
         return image_pixels(img, cam_obj.name), f"background image {img.name!r}"
     img = _from_image_plane(scene, cam_obj)

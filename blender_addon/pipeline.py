@@ -128,7 +128,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     check_cancel(cancel)
 
     # A camera that does not see the mesh adds nothing: drop it, but not all.
-    warnings, keep = [], []
+    warnings, keep = list(inputs.skipped), []
     for i, (v, b) in enumerate(zip(inputs.views, bakes)):
         if np.any(b.mask):
             keep.append(i)

@@ -223,8 +223,9 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
     ------
     DelightError
         No mesh, no UVs, no cameras, a camera without a readable photo, a photo
-        that does not fit its camera, or a non-perspective camera. Nothing in
-        the scene or on disk is changed.
+        that does not fit its camera, or a non-perspective camera (with all
+        cameras, such a camera is skipped instead while two others remain; see
+        ``SceneInputs.skipped``). Nothing in the scene or on disk is changed.
     """
     scene, view_layer = _scene_and_view_layer(context_or_scene)
     obj = _target(scene, view_layer, object_name)
@@ -235,12 +236,26 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
                                "are supported")
     depsgraph = _depsgraph(scene, view_layer)
     mesh = mesh_arrays(obj, depsgraph)
-    views = []
+    views, skipped, errors = [], [], []
+    all_cameras = not camera_names and not selected_only
     for cam in cams:
-        photo, source = _photos.find_photo(scene, cam, images_dir)
-        h, w = photo.shape[:2]
-        small, scale = downscale(photo, working_res_mp)
-        camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
-                                scale=scale)
-        views.append(ViewInput(name=cam.name, camera=camera, photo=small, source=source))
-    return SceneInputs(object_name=obj.name, mesh=mesh, views=views)
+        try:
+            views.append(_view(scene, depsgraph, cam, images_dir, working_res_mp))
+        except DelightError as exc:
+            if not all_cameras:
+                raise
+            errors.append(exc)
+            skipped.append(f"skipped camera {cam.name!r}: {exc}")
+    # With "all cameras", an unusable camera is left out as long as two others remain.
+    if errors and len(views) < 2:
+        raise errors[0]
+    return SceneInputs(object_name=obj.name, mesh=mesh, views=views, skipped=skipped)
+
+
+def _view(scene, depsgraph, cam, images_dir, working_res_mp):
+    photo, source = _photos.find_photo(scene, cam, images_dir)
+    h, w = photo.shape[:2]
+    small, scale = downscale(photo, working_res_mp)
+    camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
+                            scale=scale)
+    return ViewInput(name=cam.name, camera=camera, photo=small, source=source)

@@ -52,3 +52,4 @@ class SceneInputs:
     object_name: str
     mesh: MeshArrays
     views: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)   # why cameras were left out, one line each

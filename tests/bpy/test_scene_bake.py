@@ -344,3 +344,57 @@ def test_bake_cancel_and_progress(tmp_path):
     with pytest.raises(Cancelled):
         bake_views(s.scene, inputs, cancel=lambda: calls.append(1) or len(calls) > 1)
     assert len(calls) == 2
+
+
+# --- background kinds and unusable cameras ------------------------------------------------------------
+
+def test_image_sequence_background_gives_each_camera_its_frame(tmp_path):
+    from blender_addon.core.io.exr import write_exr
+    s = build_scene(str(tmp_path), n_cameras=3, size=(16, 12), photo=None)
+    frames = [np.full((12, 16, 3), 0.1 * (k + 1), np.float32) for k in range(3)]
+    for k, f in enumerate(frames):
+        write_exr(str(tmp_path / f"shot_{k + 1:04d}.exr"), f)
+    seq = bpy.data.images.load(str(tmp_path / "shot_0001.exr"))
+    seq.source = "SEQUENCE"
+    for k, cam in enumerate(s.cameras):
+        bg = set_background(cam, seq)
+        bg.image_user.frame_start, bg.image_user.frame_duration = 1, 3
+        bg.image_user.frame_offset = k        # camera k shows frame k + 1 at the scene's frame 1
+    s.scene.frame_current = 1
+    counts = data_counts()
+    views = gather(s.scene).views
+    assert data_counts() == counts
+    for k, v in enumerate(views):
+        np.testing.assert_allclose(v.photo, frames[k], atol=1e-6)
+        assert f"shot_{k + 1:04d}.exr" in v.source
+
+
+def test_movie_and_movie_clip_backgrounds_say_what_to_do(tmp_path):
+    from blender_addon.core.io.exr import write_exr
+    s = build_scene(str(tmp_path), n_cameras=2, size=(16, 12))
+    movie = s.cameras[0].data.background_images[0].image
+    movie.source = "MOVIE"
+    msg = _expect_error("is a movie", gather, s.scene, camera_names=[s.cameras[0].name])
+    assert "export the frames as images" in msg
+    write_exr(str(tmp_path / "clip_0001.exr"), np.zeros((12, 16, 3), np.float32))
+    cam = s.cameras[1]
+    cam.data.background_images.clear()
+    bg = cam.data.background_images.new()
+    bg.source = "MOVIE_CLIP"
+    bg.clip = bpy.data.movieclips.load(str(tmp_path / "clip_0001.exr"))
+    msg = _expect_error("movie clip", gather, s.scene, camera_names=[cam.name])
+    assert "one camera per photo" in msg
+
+
+def test_with_all_cameras_an_unusable_one_is_skipped_while_two_remain(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=3, size=(16, 12))
+    bad = s.cameras[1]
+    bad.data.background_images.clear()
+    inputs = gather(s.scene)
+    assert [v.name for v in inputs.views] == [s.cameras[0].name, s.cameras[2].name]
+    assert len(inputs.skipped) == 1 and repr(bad.name) in inputs.skipped[0] and "has no photo" in inputs.skipped[0]
+    # Named cameras: the user asked for this one, so it is an error.
+    _expect_error("has no photo", gather, s.scene, camera_names=[c.name for c in s.cameras])
+    # Fewer than two usable cameras left: an error, not a one-view solve.
+    s.cameras[2].data.background_images.clear()
+    _expect_error("has no photo", gather, s.scene)
