@@ -318,3 +318,15 @@ def test_safe_names():
     assert write.safe_name("") == "unnamed"
     assert write.safe_name("CON") == "_CON"
     assert write.unique_names(["a/b", "a_b", "A_B", "a:b"]) == ["a_b", "a_b_2", "A_B_3", "a_b_4"]
+
+
+def test_negated_photos_are_refused_before_the_solve(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=3, kind="exr")
+    for img in s.images.values():
+        px = np.empty(len(img.pixels), np.float32)
+        img.pixels.foreach_get(px)
+        img.pixels.foreach_set(-px)
+    before = scene_state()
+    with pytest.raises(DelightError, match="negative, so it is not a linear image of light"):
+        pipeline.run(s.scene, options(tmp_path / "out", method="texture"))
+    assert scene_state() == before and not (tmp_path / "out").exists()
