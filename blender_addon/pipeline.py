@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .core.checks import check_photos
+from .core.checks import check_photos, check_uv_layout
 from .core.errors import DelightError
 from .core.io.jsonio import json_value
 from .core.pipeline import DEFAULTS, METHODS, Computed, Options, check_cancel, stage_progress
@@ -140,6 +140,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     if len(keep) < len(bakes):
         inputs.views = [inputs.views[i] for i in keep]
         bakes = [bakes[i] for i in keep]
+    warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
     warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views],
                              [b.mask for b in bakes])
     return Prepared(options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times,

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from core.checks import NEGATIVE_MAX_SHARE, check_photos
+from core.checks import NEGATIVE_MAX_SHARE, check_photos, check_uv_layout
 from core.errors import DelightError
 
 
@@ -48,3 +48,36 @@ def test_a_few_negative_pixels_are_left_out_with_a_warning():
     photos[1][rows[:k + 1], cols[:k + 1], 0] = -0.2   # one more than the limit
     with pytest.raises(DelightError, match="'cam1'"):
         check_photos(names, photos, masks)
+
+
+def grid_mesh(k=8):
+    """A k x k grid of unit squares in the plane z = 0, two triangles each, UV = position / k."""
+    tris = []
+    for i in range(k):
+        for j in range(k):
+            a, b, c, d = (i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)
+            tris += [(a, b, c), (a, c, d)]
+    xy = np.array(tris, np.float64)
+    pos = np.concatenate([xy, np.zeros(xy.shape[:2] + (1,))], axis=2)
+    return (xy / k * 0.9 + 0.05).astype(np.float32), pos
+
+
+def test_a_clean_uv_layout_gives_no_warning():
+    uv, pos = grid_mesh()
+    assert check_uv_layout(uv, pos, 64) == []
+
+
+def test_overlapping_zero_area_and_stretched_faces_are_measured():
+    uv, pos = grid_mesh()
+    folded = uv.copy()
+    folded[:32] = folded[32:64]                        # a quarter of the faces on top of another quarter
+    (w,) = check_uv_layout(folded, pos, 64)
+    assert "overlapping UV islands" in w and float(w.split("UV layout: ")[1].split(" %")[0]) > 20
+    flat = uv.copy()
+    flat[:10] = flat[:10, :1]                          # 10 faces collapsed to a point
+    (w,) = check_uv_layout(flat, pos, 64)
+    assert w.startswith("UV layout: 10 faces (7.8 % of the surface) have no area")
+    stretched = uv.copy()
+    stretched[5, 1:] = ((0.95, 0.05), (0.95, 0.95))     # one face spans the whole map
+    warnings = check_uv_layout(stretched, pos, 64)
+    assert any("1 faces (0.8 % of the surface) are stretched" in w for w in warnings)
