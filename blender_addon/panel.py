@@ -105,6 +105,8 @@ class VIEW3D_PT_delight(bpy.types.Panel):
             box = layout.box()
             box.label(text="Last run", icon="IMAGE_DATA")
             for img in images:   # compare (photo | reflectance), then the lighting spheres
+                for line in _wrap(previews.caption(img), 40):   # the pixels hold no text
+                    box.label(text=line)
                 box.template_icon(icon_value=layout.icon(img), scale=8.0)
 
 

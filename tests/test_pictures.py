@@ -1,36 +1,26 @@
-"""core.evaluate.pictures and core.evaluate.png: the demo's and the panel's pictures."""
+"""core.evaluate.pictures: the pixel arrays of the add-on's previews and the demo's figures."""
 from __future__ import annotations
-
-import struct
-import zlib
 
 import numpy as np
 import pytest
 
-from core.evaluate.pictures import energy_plot, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
-from core.evaluate.png import encode_png
+from core.evaluate.pictures import BACKGROUND, grid, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
+from core.io.photos import linear_to_srgb, srgb_to_linear
 from core.solve.sh import DIFFUSE
 
 
-def test_png_bytes_decode_to_the_pixels():
-    img = np.arange(5 * 7 * 3, dtype=np.uint8).reshape(5, 7, 3)
-    data = encode_png(img)
-    assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    n = struct.unpack(">I", data[8:12])[0]
-    assert data[12:16] == b"IHDR" and struct.unpack(">II", data[16:24]) == (7, 5)
-    start = 8 + 12 + n
-    m = struct.unpack(">I", data[start:start + 4])[0]
-    assert data[start + 4:start + 8] == b"IDAT"
-    raw = np.frombuffer(zlib.decompress(data[start + 8:start + 8 + m]), np.uint8).reshape(5, 1 + 21)
-    np.testing.assert_array_equal(raw[:, 1:].reshape(5, 7, 3), img)
-    with pytest.raises(ValueError):
-        encode_png(img.astype(np.float32))
+def test_srgb_curve_round_trips_every_8_bit_code():
+    codes = np.arange(256)
+    back = np.round(linear_to_srgb(srgb_to_linear(codes / 255.0)) * 255)
+    np.testing.assert_array_equal(back, codes)
+    np.testing.assert_allclose(linear_to_srgb([2.0, 1.0, -1.0, 0.0]), [1, 1, 0, 0], atol=1e-12)   # clipped
 
 
 def test_srgb_tone_map_matches_the_standard_curve():
     out = to_srgb8(np.array([[[0.0, 0.0031308, 0.5], [1.0, 2.0, np.nan]]]))
     np.testing.assert_array_equal(out[0, 0], [0, 10, 188])   # 0.5 linear -> 0.7354 sRGB -> 188
-    np.testing.assert_array_equal(out[0, 1], [40, 40, 40])   # NaN -> background
+    np.testing.assert_array_equal(out[0, 1], BACKGROUND)     # NaN -> background
+    np.testing.assert_array_equal(to_srgb8(np.full((1, 1), 1.0), white=2.0), [[[188, 188, 188]]])   # grey, exposed
 
 
 def test_sphere_shading_follows_the_sh_basis():
@@ -42,17 +32,30 @@ def test_sphere_shading_follows_the_sh_basis():
     top_light[2], top_light[3] = 0.5, 1.0       # brighter towards +Z
     s = shade_sphere(top_light, 32)[..., 0]
     assert s[4, 16] > s[16, 16] > s[28, 16]
+    assert np.isnan(s[0, 0]) and np.isnan(s[31, 31])                 # corners are outside the disc
 
 
-def test_lighting_grid_and_energy_plot_shapes():
-    sig = np.stack([np.tile(DIFFUSE, (3, 1))] * 6)
-    g = lighting_spheres(sig, [f"v{i}" for i in range(6)], size=20, columns=4)
-    assert g.shape[1] == 6 + 4 * 26 and g.dtype == np.uint8
-    e = energy_plot(np.geomspace(1e5, 2e3, 30), width=300, height=200)
-    assert e.shape == (200, 300, 3)
-    red = (e[..., 0] > 150) & (e[..., 1] < 90)
-    # The curve falls from the top left to the bottom right of the plot box.
-    rows, cols = np.nonzero(red)
-    assert rows[cols.argmin()] < rows[cols.argmax()]
+def test_lighting_spheres_share_one_exposure():
+    dim, bright = np.tile(DIFFUSE, (3, 1)), 3 * np.tile(DIFFUSE, (3, 1))
+    pics = lighting_spheres(np.stack([dim, bright]), size=20)
+    assert pics.shape == (2, 20, 20, 3) and pics.dtype == np.uint8
+    _, inside = sphere_normals(20)
+    assert np.all(pics[0][inside] < pics[1][inside])                  # the brighter light stays brighter
+    np.testing.assert_array_equal(pics[:, ~inside], np.broadcast_to(BACKGROUND, (2, (~inside).sum(), 3)))
+    # A light from the right (+X) lights the right of the sphere.
+    side = np.zeros((1, 1, 9))
+    side[0, 0, 3], side[0, 0, 0] = 1.0, 0.8       # constant + x (the basis of core.solve.sh)
+    p = lighting_spheres(side, size=20)[0, 10, :, 0]
+    assert p[17] > p[10] > p[2]
+
+
+def test_grid_places_pictures_in_rows():
+    a = np.full((4, 5, 3), 100, np.uint8)
+    b = np.full((6, 3, 3), 200, np.uint8)
+    g = grid([a, b, a], columns=2, gap=1)
+    # Cells: column widths 5 and 3, row heights 6 and 4, one pixel apart and around.
+    assert g.shape == (1 + 6 + 1 + 4 + 1, 1 + 5 + 1 + 3 + 1, 3)
+    assert (g[1:5, 1:6] == 100).all() and (g[1:7, 7:10] == 200).all() and (g[8:12, 1:6] == 100).all()
+    assert (g[5:7, 1:6] == BACKGROUND).all() and (g[8:12, 7:10] == BACKGROUND).all()
     with pytest.raises(ValueError):
-        energy_plot([0.0, -1.0])
+        grid([])

@@ -6,13 +6,8 @@ from .pictures import (to_srgb8,
     sphere_normals,
     shade_sphere,
     lighting_spheres,
-    strip,
     grid,
-    energy_plot,
-    draw_text,
-    text_size,
     BACKGROUND)
-from .png import encode_png, write_png
 
 __all__ = [
     "scaled_rmse",
@@ -22,12 +17,6 @@ __all__ = [
     "sphere_normals",
     "shade_sphere",
     "lighting_spheres",
-    "strip",
     "grid",
-    "energy_plot",
-    "draw_text",
-    "text_size",
     "BACKGROUND",
-    "encode_png",
-    "write_png",
 ]

@@ -6,7 +6,7 @@ from .jsonio import json_value
 from .names import safe_name, unique_names
 from .exr import read_exr, write_exr, exr_parts
 from .bundle import FORMAT, VERSION, save_bundle, load_bundle
-from .photos import srgb_to_linear, downscale
+from .photos import srgb_to_linear, linear_to_srgb, downscale
 
 __all__ = [
     "atomic_path",
@@ -22,5 +22,6 @@ __all__ = [
     "save_bundle",
     "load_bundle",
     "srgb_to_linear",
+    "linear_to_srgb",
     "downscale",
 ]

@@ -1,16 +1,22 @@
-"""Photo pixels: decoding 8-bit sRGB codes to linear, and area-averaged downscaling."""
+"""Photo pixels: the sRGB curve both ways, and area-averaged downscaling."""
 from __future__ import annotations
 
 import numpy as np
 from scipy import sparse
 
-__all__ = ["srgb_to_linear", "downscale"]
+__all__ = ["srgb_to_linear", "linear_to_srgb", "downscale"]
 
 
 def srgb_to_linear(values):
     """The exact sRGB EOTF (IEC 61966-2-1) of values in [0, 1]."""
     v = np.asarray(values, dtype=np.float32)
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(values):
+    """The inverse of :func:`srgb_to_linear`: linear values in [0, 1] (clipped first) to sRGB-encoded ones."""
+    v = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
 
 
 def _area_matrix(n_in, n_out):

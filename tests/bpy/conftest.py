@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import math
 import os
-import struct
 import sys
-import zlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -37,6 +35,7 @@ import bmesh  # noqa: E402  (only exists once bpy is imported)
 from mathutils import Vector  # noqa: E402
 
 from core.io.exr import read_exr, write_exr  # noqa: E402
+from core.io.photos import linear_to_srgb  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -116,24 +115,23 @@ def set_render(width, height, pixel_aspect=(1.0, 1.0), scene=None):
     return scene
 
 
-def linear_to_srgb(x):
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-
-
 def write_png(path, codes):
-    """Write an 8-bit RGB PNG of ``codes`` ``(H, W, 3)`` uint8, row 0 at the top (no dependencies)."""
-    codes = np.ascontiguousarray(codes, dtype=np.uint8)
-    h, w, _ = codes.shape
-    raw = b"".join(b"\x00" + codes[r].tobytes() for r in range(h))
+    """Write an 8-bit RGB PNG of ``codes`` ``(H, W, 3)`` uint8, row 0 at the top, through Blender's image API.
 
-    def chunk(tag, data):
-        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-           + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
-    with open(path, "wb") as fh:
-        fh.write(png)
+    The temporary image is removed again, so the file is all that is left.
+    """
+    codes = np.asarray(codes, dtype=np.uint8)
+    h, w = codes.shape[:2]
+    img = bpy.data.images.new("_write_png", w, h, alpha=False)
+    try:
+        px = np.ones((h, w, 4), dtype=np.float32)
+        px[..., :3] = codes[::-1] / np.float32(255)      # a byte image stores code/255, bottom row first
+        img.pixels.foreach_set(px.ravel())
+        img.filepath_raw = path
+        img.file_format = "PNG"
+        img.save()
+    finally:
+        bpy.data.images.remove(img)
     return path
 
 

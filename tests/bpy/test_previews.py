@@ -39,14 +39,17 @@ def test_run_adds_compare_and_lighting_images_that_are_saved_with_the_file(tmp_p
     compare, lighting = previews.find("Target")
     assert (compare.name, lighting.name) == previews.image_names("Target") \
         == ("Target_delight_compare", "Target_delight_lighting")
-    # Photo | reflectance side by side, each 64 x 48 under a label row.
+    # Photo | reflectance side by side, each 64 x 48, no text in the pixels: the caption says what they are.
     c = pixels(compare)
-    assert c.shape[1] == 6 + 2 * (64 + 6) and c.shape[0] > 48
-    photo_half, ours_half = not_background(c[-54:-6, 6:70]), not_background(c[-54:-6, 76:140])
+    assert c.shape == (6 + 48 + 6, 6 + 2 * (64 + 6), 3)
+    photo_half, ours_half = not_background(c[6:54, 6:70]), not_background(c[6:54, 76:140])
     assert photo_half.mean() > 0.9 and 0.05 < ours_half.mean() < 0.9   # the reflectance only on the mesh
-    # One sphere per camera, 4 in a row, each a lit disc.
+    best = previews.caption(compare).split(":")[0]
+    assert best in [cam.name for cam in s.cameras] and previews.caption(compare) == f"{best}: photo | reflectance"
+    # One sphere per camera, 4 in a row, each a lit disc; the caption names the views in that order.
     lit = not_background(pixels(lighting))
-    assert lighting.size[0] == 6 + 4 * (64 + 6) and 0.3 < lit.mean() < 0.8
+    assert tuple(lighting.size) == (6 + 4 * (64 + 6), 6 + 64 + 6) and 0.3 < lit.mean() < 0.8
+    assert previews.caption(lighting) == "Lighting, left to right: " + ", ".join(cam.name for cam in s.cameras)
     for img in (compare, lighting):
         assert img.packed_file is not None and img.use_fake_user
     # They survive a save and reload (fake user + packed).
@@ -57,6 +60,7 @@ def test_run_adds_compare_and_lighting_images_that_are_saved_with_the_file(tmp_p
     again = previews.find("Target")
     assert [i.name for i in again] == names
     np.testing.assert_array_equal(pixels(again[0]), c)
+    assert previews.caption(again[0]) == f"{best}: photo | reflectance"
 
 
 def test_rerun_replaces_the_images_and_project_drops_the_lighting(tmp_path):
@@ -67,6 +71,7 @@ def test_rerun_replaces_the_images_and_project_drops_the_lighting(tmp_path):
     assert sorted(i.name for i in bpy.data.images) == names            # no .001 copies
     pipeline.run(s.scene, options(tmp_path / "out", overwrite=True, method="project"))
     assert [i.name for i in previews.find("Target")] == ["Target_delight_compare"]
+    assert previews.caption(previews.find("Target")[0]).endswith(": photo | projected")
 
 
 def test_cancelled_run_adds_no_pictures(tmp_path):
