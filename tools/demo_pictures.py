@@ -103,8 +103,7 @@ def make_pictures(out_dir, fixture_dir=None, view=None, dest=None) -> list:
     views = [v for v in lighting["views"] if v["sh"] is not None]
     if not views or not report["energy"]:
         raise SystemExit(f"error: {out_dir} has no lighting or energy (method 'project'?)")
-    channels = list(views[0]["sh"])
-    sigmas = np.array([[v["sh"][c] for c in channels] for v in views])
+    sigmas = np.array([v["sh"] for v in views])   # (views, channels, 9), schema in core.io.outputs
     paths = [os.path.join(dest, f) for f in FILES]
     write_png(paths[0], before_after(out_dir, report, fixture_dir, view))
     write_png(paths[1], lighting_spheres(sigmas, [v["name"] for v in views], columns=5))
