@@ -14,9 +14,9 @@ Options::
     --working-res MP      downscale photos to at most MP megapixels (default 1)
     --texture-size N      N x N albedo texture (default 1024)
     --method texture|image|project   (default texture; project = no delighting)
-    --out DIR             output folder (default: beside the .blend)
+    --out DIR             output folder (default: delight_<object> beside the .blend)
     --save                save the .blend with the new material (never otherwise)
-    --overwrite           replace existing output files
+    --overwrite           replace files in the way that Delight did not write
 
 It writes ``<object>_albedo.exr``, ``views/<camera>.exr``, ``lighting.json``
 and ``report.json`` into ``--out`` and prints progress lines. Exit status: 0
@@ -69,9 +69,10 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     p.add_argument("--texture-size", type=int, default=1024, metavar="N", help="texture size (default 1024)")
     p.add_argument("--method", choices=("texture", "image", "project"), default="texture",
                    help="texture or image domain, or project (no delighting) (default texture)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: beside the .blend)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: delight_<object> beside the .blend)")
     p.add_argument("--save", action="store_true", help="save the .blend with the new material")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace files in the way that Delight did not write (its own are always replaced)")
     return p
 
 

@@ -123,8 +123,9 @@ class DELIGHT_OT_run(bpy.types.Operator):
                                description="Photos are downscaled to at most this many megapixels")
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
-    out_dir: StringProperty(name="Output Folder", subtype="DIR_PATH", default="//",
-                            description="Where the EXR textures and reports go (// is the .blend's folder)")
+    out_dir: StringProperty(name="Output Folder", subtype="DIR_PATH", default="",
+                            description="Where the EXR textures and reports go; "
+                                        "empty: a folder delight_<mesh> beside the .blend")
     overwrite: BoolProperty(name="Overwrite", default=False, description="Replace existing output files")
 
     _job = None

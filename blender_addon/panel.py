@@ -33,7 +33,8 @@ class DelightSettings(bpy.types.PropertyGroup):
     max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
     working_res: FloatProperty(name="Working MP", default=1.0, min=0.001, soft_max=16.0)
     texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
-    out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//")
+    out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
+                            description="Output folder; empty: a folder delight_<mesh> beside the .blend")
     overwrite: BoolProperty(name="Overwrite Files", default=False)
 
 

@@ -7,13 +7,14 @@ worker thread:
   reads bpy data and returns plain arrays.
 * :func:`compute` (any thread) is pure NumPy/SciPy: builds the problem,
   solves, fuses. It never touches bpy.
-* :func:`finish` (main thread) writes the files, then creates the image,
-  wires the material and updates the panel's preview images
-  (:mod:`.previews`). This is the only step that changes anything.
+* :func:`finish` (main thread) writes the files (:mod:`core.io.outputs`: all
+  or nothing, never over an input or a file Delight did not write), then
+  creates the image, wires the material and updates the panel's preview
+  images (:mod:`.previews`). This is the only step that changes anything.
 
 :func:`run` chains the three. A cancel (``cancel()`` returning True) raises
-:class:`core.solve.solver.Cancelled` before :func:`finish`, so the scene and the
-output folder are left as they were.
+:class:`core.errors.Cancelled`; until the files are in place that leaves the
+scene and the output folder as they were.
 """
 from __future__ import annotations
 
@@ -25,13 +26,10 @@ import numpy as np
 
 from .core.checks import check_photos, check_uv_layout
 from .core.errors import DelightError
-from .core.io.jsonio import json_value
+from .core.io import outputs as _outputs
+from .core.io.names import safe_name
 from .core.pipeline import DEFAULTS, METHODS, Computed, Options, check_cancel, stage_progress
 from .core.pipeline import compute as _compute
-from .core.solve.sh import SH_BASIS_NAMES
-
-#: The basis of the lighting coefficients in lighting.json (world-space normal n).
-SH_BASIS = list(SH_BASIS_NAMES)
 
 @dataclass
 class Prepared:
@@ -78,12 +76,37 @@ class RunReport:
         return describe_lambda(self.lam, self.lighting_variation, self.lambda_auto)
 
 
-def default_out_dir(blend_path: str) -> str:
-    """Beside the .blend; an unsaved file has no such place."""
+def _blend_folder(blend_path: str) -> str:
     if not blend_path:
         raise DelightError("the .blend file is not saved, so there is no default output folder: "
                            "choose an output folder")
     return os.path.dirname(os.path.abspath(blend_path))
+
+
+def default_out_dir(blend_path: str, object_name: str) -> str:
+    """``<blend folder>/delight_<object>``: a folder of Delight's own, apart from photos beside the .blend.
+
+    An unsaved file has no such place (:class:`DelightError`).
+    """
+    return os.path.join(_blend_folder(blend_path), "delight_" + safe_name(object_name))
+
+
+def _output_names(object_name, camera_names) -> list:
+    """The files of a run besides report.json, relative to the output folder."""
+    return [safe_name(object_name) + "_albedo.exr", *_outputs.view_files(camera_names), _outputs.LIGHTING]
+
+
+def _input_files(inputs) -> list:
+    """Every file the run reads or the scene uses: the .blend, its libraries, the photo and image files."""
+    import bpy
+
+    files = [bpy.data.filepath]
+    files += [bpy.path.abspath(lib.filepath) for lib in bpy.data.libraries]
+    files += [v.source for v in inputs.views if os.path.isabs(v.source)]   # photos from the images folder
+    for img in bpy.data.images:   # background images, image planes, textures
+        if img.source in ("FILE", "SEQUENCE", "MOVIE", "TILED") and img.filepath:
+            files.append(os.path.abspath(bpy.path.abspath(img.filepath, library=img.library)))
+    return files
 
 
 def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
@@ -92,8 +115,9 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     Raises
     ------
     DelightError
-        Bad options or input, existing outputs without ``overwrite``, or a
-        mesh that no camera sees.
+        Bad options or input, an output folder that cannot be written, an
+        output that is an input file, a file in the way that Delight did not
+        write (without ``overwrite``), or a mesh that no camera sees.
     Cancelled
         ``cancel()`` returned True.
     """
@@ -102,12 +126,11 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     from .core.geometry import bake as _bake
     from . import material as _material
     from . import scene as _scene
-    from . import write as _write
 
     options.validate()
     times = {}
-    out_dir = options.out_dir or default_out_dir(bpy.data.filepath)
-    out_dir = os.path.abspath(bpy.path.abspath(out_dir))
+    if not options.out_dir:
+        _blend_folder(bpy.data.filepath)   # no default folder: say so before reading the scene
     if options.save_blend and not bpy.data.filepath:
         raise DelightError("cannot save: the .blend file has never been saved")
 
@@ -118,8 +141,10 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
                            selected_only=options.selected_only)
     # Fail before the long part if the outputs or the material are in the way.
     _material.check_editable(bpy.data.objects[inputs.object_name])
-    _write.check_outputs(_write.output_paths(out_dir, inputs.object_name, [v.name for v in inputs.views]),
-                         options.overwrite)
+    out_dir = os.path.abspath(bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath,
+                                                                                  inputs.object_name)))
+    _outputs.prepare_outputs(out_dir, _output_names(inputs.object_name, [v.name for v in inputs.views]),
+                             options.overwrite, _input_files(inputs))
     times["gather"] = time.perf_counter() - t
     check_cancel(cancel)
 
@@ -152,27 +177,15 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     return _compute(prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel)
 
 
-def _lighting_json(prepared, computed):
+def _lighting_json(prepared, computed, files):
     names = [v.name for v in prepared.inputs.views]
-    views = []
-    for i, name in enumerate(names):
-        entry = {"name": name, "sh": None}
-        if computed.sigma is not None:
-            s = computed.sigma[i]
-            ch = ["R", "G", "B"] if s.shape[0] == 3 else ["Y"] * s.shape[0]
-            entry["sh"] = {c: [float(x) for x in s[k]] for k, c in enumerate(ch)}
-        views.append(entry)
-    return {"method": prepared.options.method,
-            "basis": SH_BASIS,
-            "normals": "world space, unit length",
-            "note": "shading = sum_k sh[k] * basis[k](n); sh is null for method 'project' (no lighting estimated)",
-            "views": views}
+    return _outputs.lighting_json(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
 
 
-def _report_json(prepared, computed, paths, times):
+def _report_json(prepared, computed, files, times):
     import bpy
     opt = prepared.options
-    return json_value({
+    return {
         "object": prepared.inputs.object_name,
         "uv_map": prepared.inputs.mesh.uv_map,
         "method": opt.method,
@@ -181,10 +194,10 @@ def _report_json(prepared, computed, paths, times):
                        "mu": opt.mu, "max_iter": opt.max_iter,
                        "working_res_mp": opt.working_res_mp, "texture_size": opt.texture_size,
                        "images_dir": opt.images_dir},
-        "cameras": [{"name": v.name, "file": os.path.relpath(paths.views[v.name], paths.out_dir),
+        "cameras": [{"name": v.name, "file": f,
                      "photo": v.source, "size": [int(v.photo.shape[1]), int(v.photo.shape[0])],
                      "pixels_on_mesh": int(np.count_nonzero(b.mask))}
-                    for v, b in zip(prepared.inputs.views, prepared.bakes)],
+                    for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)],
         "times_s": times,
         "iterations": computed.iterations,
         "energy": computed.energy,
@@ -193,13 +206,14 @@ def _report_json(prepared, computed, paths, times):
         "warnings": prepared.warnings,
         "blend_file": bpy.data.filepath,
         "blender": bpy.app.version_string,
-    })
+    }
 
 
-def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunReport:
+def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=None) -> RunReport:
     """Write the files, then the packed image and the material (main thread).
 
-    The files are written all or nothing before the scene is touched.
+    The files are written all or nothing (:func:`core.io.outputs.write_outputs`)
+    before the scene is touched; ``cancel`` is checked until they are in place.
     """
     import bpy
 
@@ -216,19 +230,20 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
         raise DelightError(f"the object {inputs.object_name!r} is gone from the scene")
     _material.check_editable(obj)   # before any file is written
     names = [v.name for v in inputs.views]
-    paths = _write.output_paths(prepared.out_dir, inputs.object_name, names)
-    stage(0.0, f"files in {paths.out_dir}")
+    albedo_file, *view_files, lighting_file = _output_names(inputs.object_name, names)
+    stage(0.0, f"files in {prepared.out_dir}")
+    contents = {albedo_file: _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)}
+    for v, b, f, values in zip(inputs.views, prepared.bakes, view_files, computed.views):
+        contents[f] = _outputs.rgba(values, b.mask)
+    contents[lighting_file] = _lighting_json(prepared, computed, view_files)
 
     def report():
         # report.json holds the time spent writing the other files.
         times["write"] = time.perf_counter() - t
-        return _report_json(prepared, computed, paths, times)
+        return _report_json(prepared, computed, view_files, times)
 
-    files = _write.write_outputs(paths, computed.albedo, computed.seen,
-                                 views=dict(zip(names, computed.views)),
-                                 masks={v.name: b.mask for v, b in zip(inputs.views, prepared.bakes)},
-                                 lighting=json_value(_lighting_json(prepared, computed)), report=report,
-                                 overwrite=opt.overwrite)
+    files = _outputs.write_outputs(prepared.out_dir, contents, report, overwrite=opt.overwrite,
+                                   inputs=_input_files(inputs), cancel=cancel)
     stage(0.6, "material")
     image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
     mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
@@ -240,7 +255,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None) -> RunR
         saved = bpy.data.filepath
     times["write"] = time.perf_counter() - t
     stage(1.0, "done")
-    return RunReport(object_name=inputs.object_name, method=opt.method, out_dir=paths.out_dir, files=files,
+    return RunReport(object_name=inputs.object_name, method=opt.method, out_dir=prepared.out_dir, files=files,
                      image_name=image.name, materials=[m.name for m in mats], times=times,
                      iterations=computed.iterations, energy=computed.energy, cameras=names,
                      warnings=list(prepared.warnings), saved_blend=saved,
@@ -267,4 +282,4 @@ def run(scene, options: Options, progress=None, cancel=None) -> RunReport:
     """
     prepared = prepare(scene, options, progress, cancel)
     computed = compute(prepared, progress, cancel)
-    return finish(scene, prepared, computed, progress)
+    return finish(scene, prepared, computed, progress, cancel)

@@ -2,7 +2,7 @@
 
 ::
 
-    python -m core solve BUNDLE --out DIR [--domain texture|image]
+    python -m core solve BUNDLE --out DIR [--overwrite] [--domain texture|image]
                          [--lambda L|auto] [--mu M] [--max-iter K] [--delta D]
 
 Run it from the repository root (or with the root on ``PYTHONPATH``).
@@ -15,22 +15,22 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``albedo.exr``
     Texture domain only: the texture, RGBA, 0 where unseen, A = seen texels.
 ``lighting.json``
-    ``{"sh_basis": ["n1", "n2", "n3", "1", "n1*n2", ...],
-    "channels": [...], "views": [{"name", "file", "sh": [[9 floats] per
-    channel]}]}``.
+    Each view's lighting, 9 SH coefficients per channel (schema in
+    :mod:`core.io.outputs`).
 ``report.json``
-    Parameters, iterations, energy history, solve time and output files.
+    Parameters, iterations, energy history, solve time and the files written.
 
 ``<name>`` is the view name made safe as a file name (:func:`core.io.names.unique_names`).
-Files are written atomically, and only after the solver succeeded. Bad input
-(a missing or invalid bundle, bad options) ends with one ``error:`` line on
-stderr and exit status 2; a failed write ends with status 1.
+The files are written all or nothing, only after the solver succeeded, and
+never over a file Delight did not write unless ``--overwrite``
+(:mod:`core.io.outputs`). Bad input (a missing or invalid bundle, bad options,
+a file in the way or an unwritable DIR, found before the solve) ends with one
+``error:`` line on stderr and exit status 2; a failed write ends with status 1.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import sys
@@ -38,12 +38,11 @@ import time
 
 import numpy as np
 
-from .io.atomic import atomic_path
+from .errors import DelightError
 from .io.bundle import load_bundle
-from .io.exr import write_exr
-from .io.jsonio import json_value
+from .io.outputs import (LIGHTING, REPORT, channel_names, lighting_json, prepare_outputs, rgba, view_files)
+from .io.outputs import write_outputs as _write_all
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, auto_lambda, describe_lambda
-from .io.names import unique_names
 from .solve.sh import SH_BASIS_NAMES
 from .solve.solver import SolverParams, solve
 
@@ -57,33 +56,33 @@ class _InputError(Exception):
     """Bad input: reported as one line, exit status 2."""
 
 
-def _write_json(path, obj):
-    with atomic_path(path, suffix=".json") as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(json_value(obj), fh, indent=2, allow_nan=False)
-            fh.write("\n")
+def _output_files(problem, domain) -> dict:
+    """The files a solve writes besides report.json, by key (see the module docstring)."""
+    files = {"views": view_files(problem.names)}
+    if domain == "texture":
+        files["albedo"] = "albedo.exr"
+    files["lighting"] = LIGHTING
+    return files
 
 
-def _rgba(values, alpha):
-    """(H, W, C) values and (H, W) bool alpha -> RGBA with 0 colour where alpha is 0."""
-    v = np.asarray(values, dtype=np.float32)
-    if v.shape[2] == 1:
-        v = np.repeat(v, 3, axis=2)
-    rgb = np.where(alpha[:, :, None], v, 0.0).astype(np.float32)
-    return np.concatenate([rgb, alpha[:, :, None].astype(np.float32)], axis=2)
+def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, overwrite=False,
+                  cancel=None) -> dict:
+    """Write a solver :class:`~core.solve.solver.Result` into ``out_dir``, all or nothing.
 
-
-def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None) -> dict:
-    """Write a solver :class:`~core.solve.solver.Result` into ``out_dir``.
-
-    See the module docstring for the files. ``out_dir`` and ``out_dir/views``
-    are created if needed.
+    See the module docstring for the files and :func:`core.io.outputs.write_outputs`
+    for the guarantees (``overwrite`` and ``cancel`` are passed on; the bundle
+    is an input that is never written).
 
     Returns
     -------
     dict
         Relative paths of the written files: ``"views"`` (list, in view order),
         ``"lighting"``, ``"report"`` and, in the texture domain, ``"albedo"``.
+
+    Raises
+    ------
+    DelightError
+        A file in the way, or the write failed; ``out_dir`` is as it was.
     """
     m, c = problem.n_views, problem.channels
     sigma = np.asarray(result.sigma, dtype=np.float64)
@@ -95,39 +94,29 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None) -
         if np.shape(v) != problem.images[i].shape:
             raise ValueError(f"result: view {i} has shape {np.shape(v)}, "
                              f"expected {problem.images[i].shape}")
-    os.makedirs(os.path.join(out_dir, "views"), exist_ok=True)
-    stems = unique_names(problem.names)
-    files = {"views": [f"views/{s}.exr" for s in stems]}
-    for i, rel in enumerate(files["views"]):
-        write_exr(os.path.join(out_dir, rel), _rgba(result.views[i], problem.masks[i]))
+    files = _output_files(problem, "image" if result.texture is None else "texture")
+    contents = {}
     if result.texture is not None:
         tex = np.asarray(result.texture, dtype=np.float32)
-        tex = tex[:, :, None] if tex.ndim == 2 else tex
-        seen = (np.all(np.isfinite(tex), axis=2) if result.seen is None
+        seen = (np.all(np.isfinite(tex if tex.ndim == 3 else tex[..., None]), axis=2) if result.seen is None
                 else np.asarray(result.seen, dtype=bool))
-        files["albedo"] = "albedo.exr"
-        write_exr(os.path.join(out_dir, files["albedo"]), _rgba(tex, seen))
-    channels = ["Y"] if c == 1 else ["R", "G", "B"]
-    files["lighting"] = "lighting.json"
-    _write_json(os.path.join(out_dir, files["lighting"]), {
-        "sh_basis": SH_BASIS,
-        "channels": channels,
-        "views": [{"name": str(problem.names[i]), "file": files["views"][i],
-                   "sh": sigma[i].tolist()} for i in range(m)],
-    })
-    files["report"] = "report.json"
+        contents[files["albedo"]] = rgba(tex, seen)
+    for i, rel in enumerate(files["views"]):
+        contents[rel] = rgba(result.views[i], problem.masks[i])
+    contents[files["lighting"]] = lighting_json(problem.names, files["views"], sigma, c, params.domain)
+    files["report"] = REPORT
     energy = [float(e) for e in result.energy]
-    _write_json(os.path.join(out_dir, files["report"]), {
+    report = {
         "bundle": None if bundle is None else os.path.abspath(bundle),
         "params": dataclasses.asdict(params),
         "n_views": m,
-        "channels": channels,
+        "channels": channel_names(c),
         "iterations": int(result.iterations),
         "energy": energy,
         "time_s": None if elapsed is None else round(float(elapsed), 3),
-        "files": files,
         "info": dict(result.info or {}),
-    })
+    }
+    _write_all(out_dir, contents, report, overwrite=overwrite, inputs=[bundle], cancel=cancel)
     return files
 
 
@@ -162,6 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     defaults = SolverParams()
     s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")
     s.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
+    s.add_argument("--overwrite", action="store_true",
+                   help="replace files in DIR that Delight did not write (its own are always replaced)")
     s.add_argument("--domain", choices=("texture", "image"),
                    help="unknowns per texel or per pixel (default: texture if the bundle has a "
                         "texture layout, else image)")
@@ -187,26 +178,21 @@ def _progress(fraction, message):
     print(f"[{100 * float(fraction):5.1f}%] {message}", file=sys.stderr, flush=True)
 
 
-def _check_out_dir(out):
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise _InputError(f"--out {out}: exists and is not a folder")
-    parent = os.path.abspath(out)
-    while not os.path.exists(parent):
-        parent = os.path.dirname(parent)
-    if not os.path.isdir(parent) or not os.access(parent, os.W_OK | os.X_OK):
-        raise _InputError(f"--out {out}: cannot write in {parent}")
-
-
 def _solve(args) -> int:
     try:
-        _check_out_dir(args.out)
         problem = load_bundle(args.bundle)
-    except (OSError, ValueError, _InputError) as exc:
+    except (OSError, ValueError) as exc:
         raise _InputError(str(exc)) from exc
     domain = args.domain or ("texture" if problem.texture is not None else "image")
     if domain == "texture" and problem.texture is None:
         raise _InputError(f"bundle {args.bundle}: the texture domain needs a texture layout "
                           "(texel_pos), which the bundle lacks; use --domain image")
+    files = _output_files(problem, domain)
+    try:   # before the solve: a file in the way or an unwritable folder
+        prepare_outputs(args.out, [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
+                        args.overwrite, inputs=[args.bundle])
+    except DelightError as exc:
+        raise _InputError(str(exc)) from exc
     lam = args.lam
     if lam is None:
         lam, variation = auto_lambda(problem)
@@ -221,10 +207,10 @@ def _solve(args) -> int:
         raise _InputError(f"bundle {args.bundle}: {exc}") from exc
     elapsed = time.perf_counter() - t0
     try:
-        os.makedirs(args.out, exist_ok=True)
-        write_outputs(args.out, problem, result, params, elapsed=elapsed, bundle=args.bundle)
-    except OSError as exc:
-        print(f"error: writing results to {args.out}: {exc}", file=sys.stderr)
+        write_outputs(args.out, problem, result, params, elapsed=elapsed, bundle=args.bundle,
+                      overwrite=args.overwrite)
+    except DelightError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     print(f"{result.iterations} iterations in {elapsed:.1f} s; wrote {args.out}")
     return 0

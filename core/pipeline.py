@@ -60,7 +60,7 @@ class Options:
         ``"texture"`` or ``"image"`` (the solver's two domains), or
         ``"project"`` (no delighting: the photos fused, for comparison).
     out_dir : str, optional
-        Output folder; default the .blend's folder.
+        Output folder; default ``delight_<object>`` beside the .blend.
     save_blend : bool
         Save the .blend after wiring the material.
     overwrite : bool

@@ -204,8 +204,7 @@ def make_pictures(out_dir, fixture_dir=None, view=None, dest=None) -> list:
     views = [v for v in lighting["views"] if v["sh"] is not None]
     if not views or not report["energy"]:
         raise SystemExit(f"error: {out_dir} has no lighting or energy (method 'project'?)")
-    channels = list(views[0]["sh"])
-    sigmas = np.array([[v["sh"][c] for c in channels] for v in views])
+    sigmas = np.array([v["sh"] for v in views])   # (views, channels, 9), schema in core.io.outputs
     paths = [os.path.join(dest, f) for f in FILES]
     draw_before_after(paths[0], before_after_pictures(out_dir, report, fixture_dir, view))
     draw_lighting(paths[1], sigmas, [v["name"] for v in views])

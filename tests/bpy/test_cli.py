@@ -12,7 +12,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import ROOT, build_scene  # noqa: E402
+from conftest import ROOT, build_scene, make_image, set_background, synth_photo, write_exr  # noqa: E402
 from scene_state import files_under  # noqa: E402
 
 from blender_addon.core.io.exr import read_exr  # noqa: E402
@@ -86,11 +86,119 @@ def test_blender_P_script_path_takes_the_same_options(tmp_path):
     assert digest(blend) == before
 
 
-def test_default_out_is_beside_the_blend(tmp_path):
+def photos_in_views(tmp_path):
+    """A saved scene whose cameras cam_00.. have their photos in ``<blend dir>/views/cam_00.exr`` (as
+    importers lay them out); return the .blend path and the photos' bytes."""
+    s = build_scene(str(tmp_path), photo=None, prefix="cam_0", suffix="")
+    (tmp_path / "views").mkdir()
+    for i, cam in enumerate(s.cameras):
+        set_background(cam, make_image(cam.name, synth_photo(64, 48, seed=i), kind="exr",
+                                       folder=str(tmp_path / "views")))
+    blend = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    return blend, {p: (tmp_path / p).read_bytes() for p in files_under(tmp_path) if p.startswith("views/")}
+
+
+def test_default_out_is_a_folder_of_its_own_and_reruns_replace_it(tmp_path):
+    blend, photos = photos_in_views(tmp_path)
+    for _ in range(2):   # the second run replaces Delight's own files without --overwrite
+        p = run_cli(blend, *FAST)
+        assert p.returncode == 0, p.stderr
+    out = tmp_path / "delight_Target"
+    assert files_under(out) == sorted(["Target_albedo.exr", "lighting.json", "report.json", "views"]
+                                      + [f"views/cam_0{i}.exr" for i in range(4)])
+    assert {p: (tmp_path / p).read_bytes() for p in photos} == photos
+    assert sorted(files_under(tmp_path / "views")) == sorted(p[len("views/"):] for p in photos)
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
+def test_outputs_over_the_photos_are_refused(tmp_path, overwrite):
+    blend, photos = photos_in_views(tmp_path)
+    before = digest(blend)
+    p = run_cli(blend, *FAST, "--out", tmp_path, *overwrite)
+    assert p.returncode == 1, p.stdout + p.stderr
+    errors = error_lines(p)
+    photo = str(tmp_path / "views" / "cam_00.exr")
+    assert len(errors) == 1 and "would overwrite the input" in errors[0] and errors[0].count(photo) == 2, errors
+    assert not any("bake" in line for line in p.stdout.splitlines())    # refused before the bake
+    assert sorted(files_under(tmp_path)) == sorted(["scene.blend", "views", *photos])
+    assert {p: (tmp_path / p).read_bytes() for p in photos} == photos and digest(blend) == before
+
+
+def test_photos_from_the_images_folder_are_inputs_too(tmp_path):
+    build_scene(str(tmp_path), photo=None, prefix="cam_0", suffix="")
+    blend = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    (tmp_path / "views").mkdir()
+    for i in range(4):
+        write_exr(str(tmp_path / "views" / f"cam_0{i}.exr"), synth_photo(64, 48, seed=i))
+    photos = {p: (tmp_path / p).read_bytes() for p in files_under(tmp_path) if p.startswith("views/")}
+    p = run_cli(blend, *FAST, "--images", tmp_path / "views", "--out", tmp_path, "--overwrite")
+    assert p.returncode == 1, p.stdout + p.stderr
+    errors = error_lines(p)
+    assert len(errors) == 1 and "would overwrite the input" in errors[0], errors
+    assert {p: (tmp_path / p).read_bytes() for p in photos} == photos
+
+
+def test_unwritable_out_is_one_error_before_the_bake(tmp_path):
     blend, _ = save_scene(tmp_path)
-    p = run_cli(blend, *FAST)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    os.chmod(locked, 0o500)
+    try:
+        try:
+            (locked / "probe").write_text("")
+            chmod_works = False   # root ignores folder permissions
+            (locked / "probe").unlink()
+        except PermissionError:
+            chmod_works = True
+        if chmod_works:
+            out, message = locked / "out", "permission denied; choose another output folder"
+        else:   # a path under a regular file fails for anyone
+            out, message = tmp_path / "scene.blend" / "out", "is a file, not a folder"
+        p = run_cli(blend, *FAST, "--out", out)
+    finally:
+        os.chmod(locked, 0o700)
+    assert p.returncode == 1, p.stdout + p.stderr
+    errors = error_lines(p)
+    assert len(errors) == 1 and "cannot write to" in errors[0] and message in errors[0], errors
+    assert not any("bake" in line for line in p.stdout.splitlines())
+    assert files_under(locked) == []
+
+
+def test_lighting_json_schema_is_that_of_python_m_core(tmp_path):
+    """The same keys, value types and fixed values from the add-on and from ``python -m core solve``."""
+    sys.path.insert(0, os.path.join(ROOT, "tests"))
+    try:
+        from test_bundle_cli import make_problem
+    finally:
+        sys.path.remove(os.path.join(ROOT, "tests"))
+    from core.io.bundle import save_bundle   # the package test_bundle_cli builds problems with
+    save_bundle(tmp_path / "p.npz", make_problem())
+    env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
+    p = subprocess.run([sys.executable, "-m", "core", "solve", str(tmp_path / "p.npz"), "--out", str(tmp_path / "core"),
+                        "--max-iter", "1", "--domain", "texture"], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=300)
     assert p.returncode == 0, p.stderr
-    assert (tmp_path / "Target_albedo.exr").is_file() and (tmp_path / "views").is_dir()
+    blend, _ = save_scene(tmp_path)
+    p = run_cli(blend, "--method", "texture", "--texture-size", "16", "--max-iter", "1", "--out", tmp_path / "addon")
+    assert p.returncode == 0, p.stderr
+    core = json.loads((tmp_path / "core" / "lighting.json").read_text())
+    addon = json.loads((tmp_path / "addon" / "lighting.json").read_text())
+
+    def schema(x):
+        if isinstance(x, dict):
+            return {k: schema(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [schema(v) for v in x[:1]]
+        return "number" if isinstance(x, (int, float)) else type(x).__name__
+    assert schema(addon) == schema(core)
+    assert list(addon) == ["sh_basis", "channels", "normals", "method", "views"]
+    for key in ("sh_basis", "channels", "normals", "method"):
+        assert addon[key] == core[key]
+    for light in (core, addon):
+        assert np.shape([v["sh"] for v in light["views"]]) == (len(light["views"]), 3, 9)
+        assert all(v["file"].startswith("views/") and v["file"].endswith(".exr") for v in light["views"])
 
 
 def test_save_writes_the_material_into_the_blend(tmp_path):

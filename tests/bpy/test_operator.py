@@ -73,15 +73,17 @@ def test_operator_out_dir_relative_to_an_unsaved_file_is_refused(tmp_path):
     build_scene(str(tmp_path))
     before = scene_state()
     with pytest.raises(RuntimeError, match="not saved"):
-        bpy.ops.delight.run(method="project", texture_size=16)   # default out_dir is "//"
+        bpy.ops.delight.run(method="project", texture_size=16)   # default out_dir: beside the .blend
     assert scene_state() == before
 
 
-def test_operator_default_out_is_beside_the_saved_blend(tmp_path):
+def test_operator_default_out_is_a_folder_beside_the_saved_blend(tmp_path):
     build_scene(str(tmp_path))
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     assert bpy.ops.delight.run(method="project", texture_size=16) == {"FINISHED"}
-    assert (tmp_path / "Target_albedo.exr").is_file() and (tmp_path / "report.json").is_file()
+    out = tmp_path / "delight_Target"
+    assert (out / "Target_albedo.exr").is_file() and (out / "report.json").is_file()
+    assert not (tmp_path / "Target_albedo.exr").exists()
 
 
 def test_worker_job_runs_and_cancels_without_touching_the_scene(tmp_path):
@@ -128,7 +130,7 @@ def test_panel_and_settings_are_registered():
     assert VIEW3D_PT_delight.bl_category == "Delight"
     assert hasattr(bpy.types, "VIEW3D_PT_delight")
     s = bpy.context.scene.delight
-    assert s.method == "texture" and s.texture_size == 1024 and s.out_dir == "//"
+    assert s.method == "texture" and s.texture_size == 1024 and s.out_dir == ""
     mesh = bpy.data.objects.new("M", bpy.data.meshes.new("M"))
     s.target = mesh
     assert s.auto_lambda

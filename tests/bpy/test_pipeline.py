@@ -12,10 +12,11 @@ bpy = pytest.importorskip("bpy")
 from conftest import build_scene  # noqa: E402
 from scene_state import files_under, scene_state  # noqa: E402
 
-from blender_addon import pipeline, write  # noqa: E402
+from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
 from blender_addon.core.errors import Cancelled  # noqa: E402
 from blender_addon.core.errors import DelightError  # noqa: E402
+from blender_addon.core.io.names import safe_name, unique_names  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -42,6 +43,11 @@ def original_material(obj):
     nt.links.new(tex.outputs["Color"], nt.nodes["Principled BSDF"].inputs["Base Color"])
     obj.data.materials.append(mat)
     return mat
+
+
+def snapshot(folder):
+    """Every file under ``folder``: relative path -> bytes."""
+    return {p: (folder / p).read_bytes() for p in files_under(folder) if (folder / p).is_file()}
 
 
 def base_color_source(mat):
@@ -79,7 +85,8 @@ def test_project_writes_the_promised_files(tmp_path):
         assert 0 < v[..., 3].sum() < 48 * 64
 
     light = json.loads((out / "lighting.json").read_text())
-    assert [v["name"] for v in light["views"]] == names and len(light["basis"]) == 9
+    assert [v["name"] for v in light["views"]] == names and len(light["sh_basis"]) == 9
+    assert all(v["sh"] is None for v in light["views"])        # project estimates no lighting
     report = json.loads((out / "report.json").read_text())
     assert report["method"] == "project" and report["object"] == "Target"
     assert set(report["times_s"]) >= {"gather", "bake", "solve", "fuse", "write"}
@@ -132,8 +139,9 @@ def test_rerun_replaces_our_nodes_instead_of_stacking(tmp_path):
     mat = original_material(s.obj)
     pipeline.run(s.scene, options(tmp_path / "out"))
     first = scene_state()
-    # Another texture size: a new image replaces the old one under the same name.
-    rep = pipeline.run(s.scene, options(tmp_path / "out", texture_size=16, overwrite=True))
+    # Another texture size: a new image replaces the old one under the same name, and the
+    # files of the first run are replaced without overwrite (they are Delight's own).
+    rep = pipeline.run(s.scene, options(tmp_path / "out", texture_size=16))
     second = scene_state()
     assert first["trees"] == second["trees"] and first["images"] == second["images"]
     assert tuple(bpy.data.images[rep.image_name].size) == (16, 16)
@@ -185,7 +193,7 @@ def test_existing_output_is_not_overwritten(tmp_path):
     out.mkdir()
     (out / "report.json").write_text("mine")
     before = scene_state()
-    with pytest.raises(DelightError, match="report.json already exists"):
+    with pytest.raises(DelightError, match="report.json already exists and was not written by Delight"):
         pipeline.run(s.scene, options(out))
     assert scene_state() == before
     assert files_under(out) == ["report.json"] and (out / "report.json").read_text() == "mine"
@@ -193,25 +201,26 @@ def test_existing_output_is_not_overwritten(tmp_path):
     assert json.loads((out / "report.json").read_text())["object"] == "Target"
 
 
-def test_a_failure_while_writing_leaves_no_partial_output(tmp_path, monkeypatch):
+def test_a_cancel_while_writing_keeps_the_earlier_outputs(tmp_path):
     s = build_scene(str(tmp_path))
     out = tmp_path / "out"
-    before = scene_state()
-    calls = []
-    real = write.write_exr
+    pipeline.run(s.scene, options(out))
+    earlier = snapshot(out)
+    state = scene_state()
+    current = {"stage": None, "checks": 0}
 
-    def flaky(path, *a, **kw):
-        calls.append(path)
-        if len(calls) == 3:
-            raise OSError("disk full")
-        return real(path, *a, **kw)
+    def progress(fraction, message):
+        current["stage"] = message.split(":")[0]
 
-    monkeypatch.setattr(write, "write_exr", flaky)
-    with pytest.raises(OSError, match="disk full"):
-        pipeline.run(s.scene, options(out))
-    assert len(calls) == 3
-    assert files_under(out) == []            # not even the staging folder
-    assert scene_state() == before
+    def cancel():   # the third check in the write stage: after some files were staged
+        if current["stage"] == "write":
+            current["checks"] += 1
+        return current["checks"] == 3
+    with pytest.raises(Cancelled):
+        pipeline.run(s.scene, options(out, texture_size=16), progress=progress, cancel=cancel)
+    assert current["checks"] == 3
+    assert snapshot(out) == earlier            # the earlier files, byte for byte; no staging folder
+    assert scene_state() == state
 
 
 def test_hostile_camera_names_stay_inside_out(tmp_path):
@@ -268,7 +277,7 @@ def test_texture_method_delights(tmp_path):
     rep = pipeline.run(s.scene, options(tmp_path / "out", method="texture", max_iter=3))
     assert rep.iterations >= 1 and len(rep.energy) >= 2
     light = json.loads((tmp_path / "out" / "lighting.json").read_text())
-    assert all(len(v["sh"][c]) == 9 for v in light["views"] for c in "RGB")
+    assert light["channels"] == ["R", "G", "B"] and np.shape([v["sh"] for v in light["views"]]) == (4, 3, 9)
     # The per-view maps are the texture seen through each view's bake.
     albedo, _ = read_exr(tmp_path / "out" / "Target_albedo.exr")
     v0, _ = read_exr(tmp_path / "out" / "views" / f"{s.cameras[0].name}.exr")
@@ -294,7 +303,7 @@ def test_image_method_fuses_the_solved_views(tmp_path):
     albedo, _ = read_exr(tmp_path / "out" / "Target_albedo.exr")
     assert np.isfinite(albedo).all() and albedo[..., 3].any()
     light = json.loads((tmp_path / "out" / "lighting.json").read_text())
-    assert all(len(v["sh"]["R"]) == 9 for v in light["views"])
+    assert np.shape([v["sh"] for v in light["views"]]) == (4, 3, 9)
 
 
 def test_linked_material_is_refused_before_anything_is_written(tmp_path):
@@ -312,12 +321,12 @@ def test_linked_material_is_refused_before_anything_is_written(tmp_path):
 
 
 def test_safe_names():
-    assert write.safe_name("../../x") == "_._.._x"
-    assert write.safe_name("a/b") == "a_b"
-    assert write.safe_name("..") == "_."
-    assert write.safe_name("") == "unnamed"
-    assert write.safe_name("CON") == "_CON"
-    assert write.unique_names(["a/b", "a_b", "A_B", "a:b"]) == ["a_b", "a_b_2", "A_B_3", "a_b_4"]
+    assert safe_name("../../x") == "_._.._x"
+    assert safe_name("a/b") == "a_b"
+    assert safe_name("..") == "_."
+    assert safe_name("") == "unnamed"
+    assert safe_name("CON") == "_CON"
+    assert unique_names(["a/b", "a_b", "A_B", "a:b"]) == ["a_b", "a_b_2", "A_B_3", "a_b_4"]
 
 
 def test_negated_photos_are_refused_before_the_solve(tmp_path):
