@@ -1,6 +1,6 @@
 """The one options spec (core.options): the command lines are built from it and refuse bad values in its words.
 
-The bpy side (operator and panel properties, the operator's refusals) is in tests/bpy/test_options.py.
+The bpy side (operator and panel properties, the operator's refusals) is in tests/bpy/test_option_properties.py.
 """
 import dataclasses
 import io

@@ -165,7 +165,7 @@ def test_missing_blend_and_usage_errors(tmp_path):
     assert p.returncode == 2 and "invalid choice" in p.stderr
     p = run_cli(tmp_path / "x.blend", "--lambda", "soft")
     assert p.returncode == 2 and "--lambda" in p.stderr, p.stderr
-    # A number out of range is bad input, checked before the .blend is opened (tests/bpy/test_options.py).
+    # A number out of range is bad input, checked before the .blend is opened (tests/bpy/test_option_properties.py).
     for bad in ("-1", "nan"):
         p = run_cli(tmp_path / "x.blend", "--lambda", bad)
         assert p.returncode == 1 and error_lines(p) == [line for line in p.stderr.splitlines() if line], p.stderr
