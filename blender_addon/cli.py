@@ -5,23 +5,15 @@ Two ways to run it, with the same options::
     python -m blender_addon SCENE.blend [options]                 # bpy module
     blender -b SCENE.blend -P blender_addon/cli.py -- [options]   # Blender binary
 
-Options::
-
-    --object NAME         the mesh (default: the active object)
-    --cameras NAME ...    the cameras (default: all)
-    --images DIR          photos named like the cameras, for cameras without one
-    --lambda L|auto  --mu M  --max-iter K   (lambda: auto; the rest: core.solve.solver.SolverParams)
-    --working-res MP      downscale photos to at most MP megapixels (default 1)
-    --texture-size N      N x N albedo texture (default 1024)
-    --method texture|image|project   (default texture; project = no delighting)
-    --out DIR             output folder (default: delight_<object> beside the .blend)
-    --save                save the .blend with the new material (never otherwise)
-    --overwrite           replace files in the way that Delight did not write
+The options (``--help`` lists them) are built from :data:`core.options.SPEC`,
+the settings the panel shows, and checked by the same :func:`core.options.check`.
 
 It writes ``<object>_albedo.exr``, ``views/<camera>.exr``, ``lighting.json``
 and ``report.json`` into ``--out`` and prints progress lines. Exit status: 0
 on success; 1 on bad input, with one line ``error: ...`` on stderr, nothing
-written and the .blend untouched; 2 on a usage error; 130 when interrupted.
+written and the .blend untouched (a setting out of its range included); 2 on a
+usage error (an unknown option, a word where a number belongs); 130 when
+interrupted.
 """
 if __name__ == "__main__" and not __package__:
     # Run as a script by `blender -P`: import the package by name from beside
@@ -36,7 +28,7 @@ import argparse
 import os
 import sys
 
-__all__ = ["build_parser", "main", "script_argv", "options_from_args"]
+__all__ = ["build_parser", "main", "script_argv", "options_from_args", "CLI_FIELDS"]
 
 
 def script_argv(argv) -> list:
@@ -45,55 +37,27 @@ def script_argv(argv) -> list:
     return argv[argv.index("--") + 1:] if "--" in argv else []
 
 
+#: The settings the command line takes, in the order of ``--help``.
+CLI_FIELDS = ("object_name", "camera_names", "images_dir", "lam", "mu", "max_iter", "working_res_mp",
+              "texture_size", "method", "out_dir", "save_blend", "overwrite")
+
+
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
-    from .core.cli import lambda_arg
-    from .pipeline import DEFAULTS
+    from .core.options import add_arguments
     p = argparse.ArgumentParser(
         prog="python -m blender_addon" if with_blend else "blender -b SCENE.blend -P blender_addon/cli.py --",
         description="Estimate the albedo of a mesh from its photos and cameras (Melou et al. 2018) "
                     "and write it as a linear EXR texture.")
     if with_blend:
         p.add_argument("blend", metavar="SCENE.blend", help="the scene to read")
-    p.add_argument("--object", metavar="NAME", help="the mesh object (default: the active object)")
-    p.add_argument("--cameras", metavar="NAME", nargs="+", help="the cameras to use (default: all)")
-    p.add_argument("--images", metavar="DIR", help="folder of photos named like the cameras")
-    p.add_argument("--lambda", dest="lam", type=lambda_arg, default=None, metavar="L",
-                   help="TV weight, or 'auto' (default): 5 when the photos share one lighting, 0.5 when it "
-                        "changes between them (measured on the photos)")
-    p.add_argument("--mu", type=float, default=DEFAULTS.mu, metavar="M",
-                   help=f"consistency weight, image method (default {DEFAULTS.mu:g})")
-    p.add_argument("--max-iter", type=int, default=DEFAULTS.max_iter, metavar="K",
-                   help=f"outer iterations at the finest level (default {DEFAULTS.max_iter})")
-    p.add_argument("--working-res", type=float, default=1.0, metavar="MP",
-                   help="downscale photos to at most MP megapixels (default 1)")
-    p.add_argument("--texture-size", type=int, default=1024, metavar="N", help="texture size (default 1024)")
-    p.add_argument("--method", choices=("texture", "image", "project"), default="texture",
-                   help="texture or image domain, or project (no delighting) (default texture)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: delight_<object> beside the .blend)")
-    p.add_argument("--save", action="store_true", help="save the .blend with the new material")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace files in the way that Delight did not write (its own are always replaced)")
+    add_arguments(p, CLI_FIELDS)
     return p
 
 
 def options_from_args(args):
-    from .pipeline import Options
-    return Options(object_name=args.object, camera_names=args.cameras, images_dir=args.images,
-                   lam=args.lam, mu=args.mu, max_iter=args.max_iter, working_res_mp=args.working_res,
-                   texture_size=args.texture_size, method=args.method, out_dir=args.out,
-                   save_blend=args.save, overwrite=args.overwrite)
-
-
-class _Progress:
-    """Prints a line when the message changes or the bar moves by 5 %."""
-
-    def __init__(self, stream):
-        self.stream, self.last = stream, (None, -1.0)
-
-    def __call__(self, fraction, message=""):
-        if message != self.last[0] or fraction - self.last[1] >= 0.05:
-            print(f"delight: {100 * fraction:5.1f}% {message}", file=self.stream, flush=True)
-            self.last = (message, fraction)
+    """The :class:`core.options.Options` of parsed arguments."""
+    from .core.options import Options
+    return Options(**{name: getattr(args, name) for name in CLI_FIELDS})
 
 
 def main(argv=None, blend_loaded: bool = False) -> int:
@@ -112,17 +76,15 @@ def main(argv=None, blend_loaded: bool = False) -> int:
 
     import bpy
 
-    from .core.errors import Cancelled
-    from .core.errors import DelightError
+    from .core.errors import REPORTED, DelightError, report_failure
+    from .core.progress import ProgressPrinter
     from .pipeline import run
 
-    def fail(msg):
-        print(f"error: {msg}", file=sys.stderr, flush=True)
-        return 1
-
     try:
-        if args.images is not None and not os.path.isdir(args.images):
-            raise DelightError(f"the images folder {args.images} does not exist")
+        options = options_from_args(args)
+        options.validate()
+        if args.images_dir is not None and not os.path.isdir(args.images_dir):
+            raise DelightError(f"the images folder {args.images_dir} does not exist")
         if not blend_loaded:
             path = os.path.abspath(args.blend)
             if not os.path.isfile(path):
@@ -133,14 +95,10 @@ def main(argv=None, blend_loaded: bool = False) -> int:
                 raise DelightError(f"cannot open {args.blend}: {str(exc).strip()}") from None
         elif not bpy.data.filepath:
             raise DelightError("no .blend was loaded (run: blender -b SCENE.blend -P cli.py -- ...)")
-        options = options_from_args(args)
         print(f"delight: {bpy.data.filepath}: method {options.method}", flush=True)
-        report = run(bpy.context.scene, options, progress=_Progress(sys.stdout))
-    except (DelightError, ValueError) as exc:
-        return fail(str(exc))
-    except (Cancelled, KeyboardInterrupt):
-        print("delight: interrupted; nothing was written", file=sys.stderr, flush=True)
-        return 130
+        report = run(bpy.context.scene, options, progress=ProgressPrinter(sys.stdout))
+    except (*REPORTED, KeyboardInterrupt) as exc:
+        return report_failure(exc, sys.stderr)
     for w in report.warnings:
         print(f"warning: {w}", flush=True)
     times = ", ".join(f"{k} {v:.2f} s" for k, v in report.times.items())

@@ -8,7 +8,9 @@ runs in-line and prints its progress.
 """
 from __future__ import annotations
 
+import math
 import queue
+import sys
 import threading
 import traceback
 
@@ -16,22 +18,55 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import pipeline
-from .core.errors import Cancelled
-from .core.errors import DelightError
-from .pipeline import DEFAULTS
+from .core.errors import REPORTED, Cancelled, DelightError
+from .core.options import OPTIONS
+from .core.progress import ProgressPrinter
 
-__all__ = ["DELIGHT_OT_run", "Job", "METHOD_ITEMS", "CAMERA_ITEMS", "set_status", "get_status"]
+__all__ = ["DELIGHT_OT_run", "Job", "spec_property", "spec_labels", "set_status", "get_status"]
 
-METHOD_ITEMS = [
-    ("texture", "Texture", "Solve one albedo per texel (fast, the default)"),
-    ("image", "Image", "Solve per photo pixel with cross-view consistency, then fuse"),
-    ("project", "Project only", "No delighting: fuse the photos as they are, for comparison"),
-]
-CAMERA_ITEMS = [
-    ("ALL", "All", "Every camera in the scene"),
-    ("SELECTED", "Selected", "The selected cameras"),
-    ("COLLECTION", "Collection", "The cameras in one collection"),
-]
+
+def spec_labels(name: str) -> dict:
+    """The label and tooltip of the setting ``name`` of :data:`core.options.SPEC`, as bpy property keywords."""
+    o = OPTIONS[name]
+    return dict(name=o.label, description=o.help)
+
+
+def spec_property(name: str, clamp: bool = False):
+    """A bpy property for the setting ``name`` of :data:`core.options.SPEC`.
+
+    It has the setting's label, tooltip, default and slider (soft) range.
+
+    Parameters
+    ----------
+    name : str
+    clamp : bool
+        Give the property the setting's hard range, so the UI cannot make a value out of it (the panel).
+        Without it the property takes any number, and the run refuses a bad one with the words of
+        :func:`core.options.check`, as the command lines do (the operator: bpy would clamp silently).
+    """
+    o = OPTIONS[name]
+    kw = spec_labels(name)
+    kw["default"] = o.ui_default
+    if o.kind in ("int", "float"):
+        kw.update({k: getattr(o, k) for k in ("soft_min", "soft_max") if getattr(o, k) is not None})
+        if o.kind == "float":
+            # Float properties store float32 and clamp to +-FLT_MAX by default: infinite bounds keep inf and
+            # nan as they were given, for check() to refuse.
+            kw.update(min=-math.inf, max=math.inf)
+        if clamp:
+            kw.update({k: getattr(o, k) for k in ("min", "max") if getattr(o, k) is not None})
+        prop = FloatProperty if o.kind == "float" else IntProperty
+    elif o.kind == "bool":
+        prop = BoolProperty
+    elif o.kind == "choice":
+        prop, kw["items"] = EnumProperty, list(o.choices)
+    elif o.kind in ("str", "dir"):
+        prop = StringProperty
+        if o.kind == "dir":
+            kw["subtype"] = "DIR_PATH"
+    else:
+        raise ValueError(f"setting {name!r} ({o.kind}) has no bpy property")
+    return prop(**kw)
 
 
 def set_status(text: str):
@@ -67,7 +102,7 @@ class Job:
                                              cancel=self.cancel_event.is_set)
         except BaseException as exc:  # reported on the main thread
             self.error = exc
-            if not isinstance(exc, (Cancelled, DelightError, ValueError)):
+            if not isinstance(exc, REPORTED):
                 traceback.print_exc()
 
     def start(self):
@@ -94,10 +129,6 @@ class Job:
                 return out
 
 
-def _print_progress(fraction, message=""):
-    print(f"delight: {100 * fraction:5.1f}% {message}", flush=True)
-
-
 class DELIGHT_OT_run(bpy.types.Operator):
     """Estimate the albedo of a mesh from its photos and cameras, and put it on its material"""
 
@@ -105,28 +136,20 @@ class DELIGHT_OT_run(bpy.types.Operator):
     bl_label = "Delight"
     bl_options = {"REGISTER", "UNDO"}
 
-    object_name: StringProperty(name="Object", description="Mesh to delight; empty: the active object")
-    cameras: EnumProperty(name="Cameras", items=CAMERA_ITEMS, default="ALL")
-    camera_collection: StringProperty(name="Camera Collection",
-                                      description="Collection whose cameras are used (Cameras: Collection)")
-    images_dir: StringProperty(name="Images Folder", subtype="DIR_PATH",
-                               description="Where to find a photo named like its camera, "
-                                           "for cameras without a background image")
-    auto_lambda: BoolProperty(name="Auto Lambda", default=True,
-                              description="Pick lambda from how much the lighting changes between the photos "
-                                          "(5 under one lighting, 0.5 when it changes)")
-    lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0,
-                       description="Smoothness (total variation) weight, when Auto Lambda is off")
-    mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0, description="Cross-view consistency weight (Image)")
-    max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
-    working_res: FloatProperty(name="Working Resolution", default=1.0, min=0.001, soft_max=16.0, unit="NONE",
-                               description="Photos are downscaled to at most this many megapixels")
-    texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
-    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
-    out_dir: StringProperty(name="Output Folder", subtype="DIR_PATH", default="",
-                            description="Where the EXR textures and reports go; "
-                                        "empty: a folder delight_<mesh> beside the .blend")
-    overwrite: BoolProperty(name="Overwrite", default=False, description="Replace existing output files")
+    # Any value passes here; the run checks it (core.options.check), as the command lines do.
+    object_name: spec_property("object_name")
+    cameras: spec_property("cameras")
+    camera_collection: spec_property("camera_collection")
+    images_dir: spec_property("images_dir")
+    auto_lambda: spec_property("auto_lambda")
+    lam: spec_property("lam")
+    mu: spec_property("mu")
+    max_iter: spec_property("max_iter")
+    working_res: spec_property("working_res_mp")
+    texture_size: spec_property("texture_size")
+    method: spec_property("method")
+    out_dir: spec_property("out_dir")
+    overwrite: spec_property("overwrite")
 
     _job = None
     _timer = None
@@ -175,10 +198,10 @@ class DELIGHT_OT_run(bpy.types.Operator):
 
     # -- in-line (background, redo) ----------------------------------------------------------------
     def execute(self, context):
-        progress = _print_progress if bpy.app.background else None
+        progress = ProgressPrinter(sys.stdout) if bpy.app.background else None
         try:
             report = pipeline.run(context.scene, self.pipeline_options(), progress=progress)
-        except (DelightError, ValueError, Cancelled) as exc:
+        except REPORTED as exc:
             return self._fail(exc)
         return self._done(report)
 
@@ -193,7 +216,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
                 wm.progress_update(int(100 * f))
                 context.workspace.status_text_set(f"Delight: {m}")
             self._prepared = pipeline.prepare(context.scene, self.pipeline_options(), progress=progress)
-        except (DelightError, ValueError, Cancelled) as exc:
+        except REPORTED as exc:
             self._cleanup(context)
             return self._fail(exc)
         except BaseException:
@@ -220,7 +243,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
         job = self._job
         self._cleanup(context)
         if job.error is not None:
-            if not isinstance(job.error, (DelightError, ValueError, Cancelled)):
+            if not isinstance(job.error, REPORTED):
                 raise job.error
             return self._fail(job.error)
         if job.cancel_event.is_set():

@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import PointerProperty
 
 from . import previews
-from .pipeline import DEFAULTS
-from .operator import CAMERA_ITEMS, METHOD_ITEMS, DELIGHT_OT_run, get_status
+from .operator import DELIGHT_OT_run, get_status, spec_labels, spec_property
 
 __all__ = ["DelightSettings", "VIEW3D_PT_delight", "operator_settings"]
 
@@ -16,38 +15,37 @@ def _is_mesh(self, obj):
 
 
 class DelightSettings(bpy.types.PropertyGroup):
-    """The panel's choices, saved with the scene (``scene.delight``)."""
+    """The panel's choices, saved with the scene (``scene.delight``).
 
-    target: PointerProperty(name="Mesh", type=bpy.types.Object, poll=_is_mesh,
-                            description="Mesh to delight; empty: the active object")
-    cameras: EnumProperty(name="Cameras", items=CAMERA_ITEMS, default="ALL")
-    camera_collection: PointerProperty(name="Collection", type=bpy.types.Collection)
-    images_dir: StringProperty(name="Images", subtype="DIR_PATH",
-                               description="Folder with photos named like the cameras, "
-                                           "for cameras without a background image")
-    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="texture")
-    auto_lambda: BoolProperty(name="Auto Lambda", default=True,
-                              description="Pick lambda from how much the lighting changes between the photos")
-    lam: FloatProperty(name="Lambda", default=DEFAULTS.lam, min=0.0, soft_max=100.0)
-    mu: FloatProperty(name="Mu", default=DEFAULTS.mu, min=0.0)
-    max_iter: IntProperty(name="Iterations", default=DEFAULTS.max_iter, min=1, soft_max=500)
-    working_res: FloatProperty(name="Working MP", default=1.0, min=0.001, soft_max=16.0)
-    texture_size: IntProperty(name="Texture Size", default=1024, min=8, max=16384)
-    out_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
-                            description="Output folder; empty: a folder delight_<mesh> beside the .blend")
-    overwrite: BoolProperty(name="Overwrite Files", default=False)
+    Built from :data:`core.options.SPEC`, with its hard ranges as the fields' limits; the run refuses what the
+    limits let through (a working resolution of 0) in the words of the command lines.
+    """
+
+    target: PointerProperty(type=bpy.types.Object, poll=_is_mesh, **spec_labels("object_name"))
+    cameras: spec_property("cameras")
+    camera_collection: PointerProperty(type=bpy.types.Collection, **spec_labels("camera_collection"))
+    images_dir: spec_property("images_dir")
+    method: spec_property("method")
+    auto_lambda: spec_property("auto_lambda")
+    lam: spec_property("lam", clamp=True)
+    mu: spec_property("mu", clamp=True)
+    max_iter: spec_property("max_iter", clamp=True)
+    working_res: spec_property("working_res_mp", clamp=True)
+    texture_size: spec_property("texture_size", clamp=True)
+    out_dir: spec_property("out_dir")
+    overwrite: spec_property("overwrite")
+
+
+#: The settings the panel hands to the operator as they are (same property name on both).
+_SAME = ("cameras", "images_dir", "method", "auto_lambda", "lam", "mu", "max_iter", "working_res", "texture_size",
+         "out_dir", "overwrite")
 
 
 def operator_settings(settings) -> dict:
     """The operator's properties for the panel's settings."""
-    return dict(
-        object_name=settings.target.name if settings.target else "",
-        cameras=settings.cameras,
-        camera_collection=settings.camera_collection.name if settings.camera_collection else "",
-        images_dir=settings.images_dir, auto_lambda=settings.auto_lambda, lam=settings.lam, mu=settings.mu,
-        max_iter=settings.max_iter,
-        working_res=settings.working_res, texture_size=settings.texture_size, method=settings.method,
-        out_dir=settings.out_dir, overwrite=settings.overwrite)
+    return dict(object_name=settings.target.name if settings.target else "",
+                camera_collection=settings.camera_collection.name if settings.camera_collection else "",
+                **{name: getattr(settings, name) for name in _SAME})
 
 
 class VIEW3D_PT_delight(bpy.types.Panel):
@@ -106,8 +104,6 @@ class VIEW3D_PT_delight(bpy.types.Panel):
             box = layout.box()
             box.label(text="Last run", icon="IMAGE_DATA")
             for img in images:   # compare (photo | reflectance), then the lighting spheres
-                for line in _wrap(previews.caption(img), 40):   # the pixels hold no text
-                    box.label(text=line)
                 box.template_icon(icon_value=layout.icon(img), scale=8.0)
 
 

@@ -23,37 +23,37 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``<name>`` is the view name made safe as a file name (:func:`core.io.names.unique_names`).
 The files are written all or nothing, only after the solver succeeded, and
 never over a file Delight did not write unless ``--overwrite``
-(:mod:`core.io.outputs`). Bad input (a missing or invalid bundle, bad options,
-a file in the way or an unwritable DIR, found before the solve) ends with one
-``error:`` line on stderr and exit status 2; a failed write ends with status 1.
+(:mod:`core.io.outputs`). Bad input (a missing or invalid bundle, a setting out
+of its range, a file in the way or an unwritable DIR, found before the solve)
+and a failed write end with one ``error:`` line on stderr and exit status 1,
+Ctrl+C with 130, a usage error (an unknown option, a word where a number
+belongs) with 2. The solver's options are built from :data:`core.options.SPEC`,
+as the add-on's.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import sys
 import time
 
 import numpy as np
 
-from .errors import DelightError
+from .errors import REPORTED, DelightError, report_failure
 from .io.bundle import load_bundle
-from .io.outputs import (LIGHTING, REPORT, channel_names, lighting_json, prepare_outputs, rgba, view_files)
+from .io.outputs import LIGHTING, REPORT, channel_names, lighting_json, prepare_outputs, rgba, view_files
 from .io.outputs import write_outputs as _write_all
-from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, auto_lambda, describe_lambda
+from .options import SOLVER_FIELDS, add_arguments, check
+from .progress import ProgressPrinter
+from .solve.lambda_choice import auto_lambda, describe_lambda
 from .solve.sh import SH_BASIS_NAMES
 from .solve.solver import SolverParams, solve
 
-__all__ = ["main", "build_parser", "write_outputs", "lambda_arg", "SH_BASIS"]
+__all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
 
 SH_BASIS = list(SH_BASIS_NAMES)
 
-
-
-class _InputError(Exception):
-    """Bad input: reported as one line, exit status 2."""
 
 
 def _output_files(problem, domain) -> dict:
@@ -120,25 +120,6 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
     return files
 
 
-def _positive(kind, allow_zero):
-    def parse(text):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if (value < 0 if allow_zero else value <= 0) or not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"must be {'>= 0' if allow_zero else '> 0'}: {text!r}")
-        return value
-    return parse
-
-
-def lambda_arg(text):
-    """argparse type for ``--lambda``: a number >= 0, or ``auto`` (None: chosen by :mod:`core.solve.lambda_choice`)."""
-    if text.strip().lower() == "auto":
-        return None
-    return _positive(float, True)(text)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m core",
@@ -148,51 +129,32 @@ def build_parser() -> argparse.ArgumentParser:
         "solve", help="solve a problem bundle and write reflectance, albedo and lighting",
         description="Solve a problem bundle (.npz, see core.io.bundle) and write views/<name>.exr, "
                     "albedo.exr (texture domain), lighting.json and report.json into DIR.")
-    defaults = SolverParams()
     s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")
     s.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
     s.add_argument("--overwrite", action="store_true",
-                   help="replace files in DIR that Delight did not write (its own are always replaced)")
+                   help="replace files in the way that Delight did not write (its own are always replaced)")
     s.add_argument("--domain", choices=("texture", "image"),
                    help="unknowns per texel or per pixel (default: texture if the bundle has a "
                         "texture layout, else image)")
-    s.add_argument("--lambda", dest="lam", type=lambda_arg, default=None, metavar="L",
-                   help=f"TV weight lambda, or 'auto' (default): {LAMBDA_FIXED:g} when the views share one "
-                        f"lighting, {LAMBDA_VARYING:g} when it changes between them (measured on the images)")
-    s.add_argument("--mu", type=_positive(float, True), default=defaults.mu, metavar="M",
-                   help=f"consistency weight mu, image domain (default {defaults.mu})")
-    s.add_argument("--max-iter", type=_positive(int, False), default=defaults.max_iter, metavar="K",
-                   help=f"maximum outer iterations (default {defaults.max_iter})")
-    s.add_argument("--delta", type=_positive(float, False), default=defaults.delta, metavar="D",
-                   help=f"Huber delta (default {defaults.delta})")
-    s.add_argument("--data-model", choices=("splat", "interpolate"), default=defaults.data_model,
-                   help="texture domain: a pixel splats onto its 4 texels, or sees their bilinear mix as a "
-                        f"renderer does (slower, exact for a textured surface; default {defaults.data_model})")
-    s.add_argument("--gauss-newton", action="store_true",
-                   help="add a joint Gauss-Newton step on reflectance and lighting to each iteration "
-                        "(about 3x slower; helps where lighting varies between views and lambda is small)")
+    add_arguments(s, SOLVER_FIELDS)
     return parser
 
 
-def _progress(fraction, message):
-    print(f"[{100 * float(fraction):5.1f}%] {message}", file=sys.stderr, flush=True)
-
-
 def _solve(args) -> int:
+    for name in SOLVER_FIELDS:
+        check(name, getattr(args, name))
     try:
         problem = load_bundle(args.bundle)
     except (OSError, ValueError) as exc:
-        raise _InputError(str(exc)) from exc
+        raise DelightError(str(exc)) from exc
     domain = args.domain or ("texture" if problem.texture is not None else "image")
     if domain == "texture" and problem.texture is None:
-        raise _InputError(f"bundle {args.bundle}: the texture domain needs a texture layout "
-                          "(texel_pos), which the bundle lacks; use --domain image")
+        raise DelightError(f"bundle {args.bundle}: the texture domain needs a texture layout "
+                           "(texel_pos), which the bundle lacks; use --domain image")
     files = _output_files(problem, domain)
-    try:   # before the solve: a file in the way or an unwritable folder
-        prepare_outputs(args.out, [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
-                        args.overwrite, inputs=[args.bundle])
-    except DelightError as exc:
-        raise _InputError(str(exc)) from exc
+    # Before the solve: a file in the way or an unwritable folder.
+    prepare_outputs(args.out, [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
+                    args.overwrite, inputs=[args.bundle])
     lam = args.lam
     if lam is None:
         lam, variation = auto_lambda(problem)
@@ -202,16 +164,11 @@ def _solve(args) -> int:
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     try:
-        result = solve(problem, params, progress=_progress)
+        result = solve(problem, params, progress=ProgressPrinter(sys.stderr))
     except ValueError as exc:  # the solver's own checks of the problem
-        raise _InputError(f"bundle {args.bundle}: {exc}") from exc
+        raise DelightError(f"bundle {args.bundle}: {exc}") from exc
     elapsed = time.perf_counter() - t0
-    try:
-        write_outputs(args.out, problem, result, params, elapsed=elapsed, bundle=args.bundle,
-                      overwrite=args.overwrite)
-    except DelightError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    write_outputs(args.out, problem, result, params, elapsed=elapsed, bundle=args.bundle, overwrite=args.overwrite)
     print(f"{result.iterations} iterations in {elapsed:.1f} s; wrote {args.out}")
     return 0
 
@@ -225,9 +182,5 @@ def main(argv=None) -> int:
         return 2
     try:
         return _solve(args)
-    except _InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except (*REPORTED, KeyboardInterrupt) as exc:
+        return report_failure(exc, sys.stderr)

@@ -10,92 +10,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import Cancelled, DelightError
 from .geometry.texels import texture_layout
+from .options import OPTIONS, Options
+from .progress import check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem
 from .solve.solver import SolverParams, solve
 from .texture import fill_unseen, fuse_views, sample_texture
 
+# Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
+# here too.
 __all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "stage_progress", "check_cancel"]
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
 
-__all__ = ["METHODS", "Options", "Prepared", "Computed", "RunReport", "prepare", "compute", "finish", "run",
-           "sample_texture"]
-
-METHODS = ("texture", "image", "project")
-
-METHODS = ("texture", "image", "project")
-
-# Share of the progress bar for each stage.
-_SPAN = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
-         "write": (0.95, 1.0)}
-
-
-@dataclass
-class Options:
-    """What to delight and how. ``None`` means "the default" where allowed.
-
-    Parameters
-    ----------
-    object_name : str, optional
-        The mesh object; default the active object.
-    camera_names : list of str, optional
-        The cameras; default all (or the selected ones with ``selected_only``).
-    images_dir : str, optional
-        Folder to look for photos by camera name, when a camera has none.
-    selected_only : bool
-        Use the selected cameras when no names are given.
-    lam, mu, max_iter : float or None, float, int
-        The solver's TV weight, consistency weight (image domain) and outer
-        iterations. ``lam=None`` picks lambda from how much the lighting
-        differs between the photos (:mod:`core.solve.lambda_choice`).
-    working_res_mp : float
-        Photos are downscaled to at most this many megapixels.
-    texture_size : int
-        N of the N x N albedo texture.
-    method : str
-        ``"texture"`` or ``"image"`` (the solver's two domains), or
-        ``"project"`` (no delighting: the photos fused, for comparison).
-    out_dir : str, optional
-        Output folder; default ``delight_<object>`` beside the .blend.
-    save_blend : bool
-        Save the .blend after wiring the material.
-    overwrite : bool
-        Replace existing output files.
-    """
-
-    object_name: str | None = None
-    camera_names: list | None = None
-    images_dir: str | None = None
-    selected_only: bool = False
-    lam: float | None = None
-    mu: float = DEFAULTS.mu
-    max_iter: int = DEFAULTS.max_iter
-    working_res_mp: float = 1.0
-    texture_size: int = 1024
-    method: str = "texture"
-    out_dir: str | None = None
-    save_blend: bool = False
-    overwrite: bool = False
-
-    def validate(self):
-        """Raise :class:`DelightError` for a bad value."""
-        if self.method not in METHODS:
-            raise DelightError(f"unknown method {self.method!r} (choose one of {', '.join(METHODS)})")
-        for name, v, lo in (("lambda", self.lam, 0.0), ("mu", self.mu, 0.0)):
-            if v is None and name == "lambda":
-                continue
-            if not np.isfinite(v) or v < lo:
-                raise DelightError(f"{name} must be a finite number >= {lo}, got {v}")
-        if int(self.max_iter) < 1:
-            raise DelightError(f"the iteration count must be at least 1, got {self.max_iter}")
-        if not np.isfinite(self.working_res_mp) or self.working_res_mp <= 0:
-            raise DelightError(f"the working resolution must be > 0 megapixels, got {self.working_res_mp}")
-        if not 8 <= int(self.texture_size) <= 16384:
-            raise DelightError(f"the texture size must be between 8 and 16384, got {self.texture_size}")
+METHODS = OPTIONS["method"].values
 
 
 @dataclass
@@ -109,21 +39,6 @@ class Computed:
     energy: list
     iterations: int
     info: dict = field(default_factory=dict)
-
-
-def stage_progress(progress, stage):
-    """A progress callback for one stage, mapped into its share of the bar."""
-    lo, hi = _SPAN[stage]
-
-    def report(fraction=0.0, message=""):
-        if progress is not None:
-            progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), f"{stage}: {message}" if message else stage)
-    return report
-
-
-def check_cancel(cancel):
-    if cancel is not None and cancel():
-        raise Cancelled("cancelled")
 
 
 def _layout(mesh, n):

@@ -309,14 +309,14 @@ def test_cli_reruns_refuses_foreign_files_and_unwritable_folders_before_the_solv
     (other / "views" / "left.exr").write_bytes(b"precious")
     r = solve_cli(bundle, "--out", other)
     lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: ")
+    assert r.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: ")
     assert "left.exr already exists and was not written by Delight" in lines[0]
     assert snapshot(other) == {"views/left.exr": b"precious"}
     assert solve_cli(bundle, "--out", other, "--overwrite").returncode == 0
 
     r = solve_cli(bundle, "--out", tmp_path / "problem.npz" / "out")
     lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and "cannot write to" in lines[0] and "solving" not in r.stderr
+    assert r.returncode == 1 and len(lines) == 1 and "cannot write to" in lines[0] and "solving" not in r.stderr
     if chmod_stops_writes(tmp_path):
         locked = tmp_path / "locked"
         locked.mkdir()
@@ -326,4 +326,4 @@ def test_cli_reruns_refuses_foreign_files_and_unwritable_folders_before_the_solv
         finally:
             os.chmod(locked, 0o700)
         lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and "permission denied" in lines[0], r.stderr
+        assert r.returncode == 1 and len(lines) == 1 and "permission denied" in lines[0], r.stderr

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .raycast import raycast
-from ..errors import Cancelled, DelightError
+from ..errors import DelightError
+from ..progress import check_cancel
 
 __all__ = ["ViewBake", "bake_view", "bake_views"]
 
@@ -92,7 +93,7 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     inputs : SceneInputs
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
-        Checked between views; when it returns True, :class:`core.solve.solver.Cancelled`
+        Checked between views; when it returns True, :class:`core.errors.Cancelled`
         is raised.
 
     Raises
@@ -108,8 +109,7 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     out = []
     m = len(inputs.views)
     for i, view in enumerate(inputs.views):
-        if cancel is not None and cancel():
-            raise Cancelled()
+        check_cancel(cancel)
         if progress is not None:
             progress(i / max(m, 1), f"baking {view.name} ({i + 1}/{m})")
         out.append(bake_view(view.camera, mesh, corner, face))

@@ -271,9 +271,13 @@ def test_missing_blend_and_usage_errors(tmp_path):
     assert p.returncode == 1 and len(error_lines(p)) == 1 and "missing.blend" in p.stderr
     p = run_cli(tmp_path / "x.blend", "--method", "magic")
     assert p.returncode == 2 and "invalid choice" in p.stderr
-    for bad in ("-1", "soft", "nan"):
+    p = run_cli(tmp_path / "x.blend", "--lambda", "soft")
+    assert p.returncode == 2 and "--lambda" in p.stderr, p.stderr
+    # A number out of range is bad input, checked before the .blend is opened (tests/bpy/test_option_properties.py).
+    for bad in ("-1", "nan"):
         p = run_cli(tmp_path / "x.blend", "--lambda", bad)
-        assert p.returncode == 2 and "--lambda" in p.stderr, (bad, p.stderr)
+        assert p.returncode == 1 and error_lines(p) == [line for line in p.stderr.splitlines() if line], p.stderr
+        assert error_lines(p)[0].startswith("error: lambda must be"), p.stderr
     assert files_under(tmp_path) == []
 
 
