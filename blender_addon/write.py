@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .core.io.outputs import rgba
+from .photos import working_space
 
 __all__ = ["make_albedo_image"]
 
@@ -26,9 +27,9 @@ def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
     img = bpy.data.images.new(name + ".delight-new" if old else name, n_cols, n_rows,
                               alpha=True, float_buffer=True)
     img["delight"] = True
-    # Non-Color: the values are used as they are (linear). The alpha is a
-    # "seen" mask, not coverage, so it must not premultiply the colour.
-    img.colorspace_settings.name = "Non-Color"
+    # The values are in the working space, as the photos were read. The alpha
+    # is a "seen" mask, not coverage, so it must not premultiply the colour.
+    img.colorspace_settings.name = working_space()
     img.alpha_mode = "CHANNEL_PACKED"
     img.pixels.foreach_set(np.ascontiguousarray(pixels[::-1]).ravel())  # Blender's row 0 is the bottom
     img.file_format = "OPEN_EXR"   # float32 EXR in the .blend; PNG would quantise

@@ -44,6 +44,7 @@ def albedo_under(space, kind, folder):
     report = pipeline.run(s.scene, pipeline.Options(out_dir=os.path.join(folder, "out"), method="project",
                                                     texture_size=32))
     rgba = read_exr(report.albedo_path)[0]
+    assert bpy.data.images[report.image_name].colorspace_settings.name == space
     matrix = rec709_to_working(folder)
     bpy.ops.wm.read_homefile(use_empty=True)
     return rgba, matrix

@@ -101,7 +101,7 @@ def test_project_writes_the_promised_files(tmp_path):
     # The packed image holds the same pixels, Blender's rows bottom-up.
     img = bpy.data.images[rep.image_name]
     assert rep.image_name == "Target_albedo" and img.packed_file is not None
-    assert tuple(img.size) == (N, N) and img.colorspace_settings.name == "Non-Color"
+    assert tuple(img.size) == (N, N) and img.colorspace_settings.name == "Linear Rec.709"
     px = np.empty(N * N * 4, np.float32)
     img.pixels.foreach_get(px)
     np.testing.assert_allclose(px.reshape(N, N, 4)[::-1], albedo, atol=1e-6)
