@@ -12,12 +12,12 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import ROOT  # noqa: E402
+from conftest import ROOT, needs_fixture_maker  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.evaluate.pictures import BACKGROUND  # noqa: E402
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, needs_fixture_maker]
 
 RES, N_CAMS = (96, 72), 4
 GAP = 6        # core.evaluate.pictures.strip's gap
