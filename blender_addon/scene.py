@@ -105,17 +105,30 @@ def _has_sharp_edges(mesh):
     return bool(flags.any())
 
 
+def _cycles_uses_corner_normals(mesh):
+    """Whether Cycles shades ``mesh`` with its corner normals rather than its vertex normals.
+
+    Checked against Cycles' Normal pass: Blender 5.2 shades every mesh with
+    its corner normals (a smooth face next to a flat one leaves the flat
+    face's normal out). Blender 4.2 to 5.1 interpolate the *vertex* normals on
+    smooth faces, even next to flat faces, and split only for custom normals
+    and sharp edges.
+    """
+    import bpy
+
+    if bpy.app.version >= (5, 2, 0):
+        return True
+    return mesh.has_custom_normals or _has_sharp_edges(mesh)
+
+
 def _shading_normals(mesh, tri_loop):
     """Object-space shading normals of each triangle corner, ``(T * 3, 3)``, as Cycles shades.
 
-    Measured against Cycles' Normal pass (bpy 5.0): a smooth face interpolates
-    the *vertex* normals even next to flat faces (it does not use the corner
-    normals that flat neighbours split); a flat face uses its face normal.
-    Custom normals and sharp edges do split, so meshes with those use the
-    corner normals.
+    Either the corner normals, or (see :func:`_cycles_uses_corner_normals`)
+    the vertex normals on smooth faces and the face normal on flat faces.
     """
     nt = len(tri_loop)
-    if mesh.has_custom_normals or _has_sharp_edges(mesh):
+    if _cycles_uses_corner_normals(mesh):
         cn = np.empty(len(mesh.loops) * 3, dtype=np.float32)
         mesh.corner_normals.foreach_get("vector", cn)
         return cn.reshape(-1, 3)[tri_loop.ravel()]

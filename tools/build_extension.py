@@ -1,18 +1,21 @@
-"""Build the Delight extension zip for Blender 4.2+.
+"""Build the Delight extension for Blender 4.2+: one zip per platform.
 
-    python tools/build_extension.py [--platforms linux-x64 macos-arm64 ...] [--out DIR]
+    .venv/bin/python tools/build_extension.py [--platforms linux-x64 macos-arm64 ...] [--out DIR]
 
-1. Download the cp311 wheels that Blender does not bundle (scipy, OpenEXR;
-   Blender ships numpy) for each platform with ``pip download`` into the
-   wheels folder (default ``blender_addon/wheels/``, git-ignored). Files
+1. Download the wheels that Blender does not bundle (scipy, OpenEXR; Blender
+   ships numpy), pinned in ``requirements.txt``, for each platform and each
+   Python that Blender 4.2 to 5.2 run (3.11 and 3.13), with ``pip download``
+   into the wheels folder (default ``build/wheels/``, git-ignored). Files
    already there are reused.
 2. Stage a copy of ``blender_addon/`` in ``build/extension/`` with the
    symlinked ``core`` copied as real files (Blender's builder skips
    symlinks), the wheels, and a manifest listing them under ``wheels``.
-3. Run Blender's own extension builder (``blender_ext.py build``, found in
-   the bpy module, so no Blender binary is needed) and ``validate`` the zip.
+3. Run Blender's own extension builder (``blender_ext.py build
+   --split-platforms``, found in the bpy module, so no Blender binary is
+   needed) and ``validate`` each zip. Blender installs from a zip only the
+   wheels of its own Python.
 
-Prints the path of the zip. Exit status 0 on success.
+Prints the paths of the zips. Exit status 0 on success.
 """
 from __future__ import annotations
 
@@ -29,8 +32,11 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ADDON = os.path.join(ROOT, "blender_addon")
 
-#: Packages to ship, pinned to the versions the tests run with.
-REQUIREMENTS = ["scipy==1.17.1", "openexr==3.5.3"]
+#: Distributions to ship; their versions are the pins in requirements.txt.
+SHIPPED = ("scipy", "openexr")
+
+#: The Pythons of the Blenders supported: 4.2 to 5.0 run 3.11, 5.1 and 5.2 run 3.13.
+PYTHONS = ("3.11", "3.13")
 
 #: Blender platform -> pip ``--platform`` tags (pip also accepts older compatible tags).
 PLATFORMS = {
@@ -39,6 +45,20 @@ PLATFORMS = {
     "macos-x64": ["macosx_11_0_x86_64", "macosx_10_14_x86_64"],
     "windows-x64": ["win_amd64"],
 }
+
+
+def shipped_requirements(path: str = os.path.join(ROOT, "requirements.txt")) -> list[str]:
+    """The ``name==version`` pins of :data:`SHIPPED` in ``requirements.txt``."""
+    pins = {}
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            m = re.match(r"\s*([A-Za-z0-9_.-]+)\s*==\s*([^\s#;]+)", line)
+            if m:
+                pins[_dist_name(m.group(1))] = m.group(2)
+    missing = [n for n in SHIPPED if n not in pins]
+    if missing:
+        raise RuntimeError(f"{path} pins no version of {', '.join(missing)} (need name==version)")
+    return [f"{n}=={pins[n]}" for n in SHIPPED]
 
 
 def blender_ext_cli() -> str:
@@ -58,33 +78,36 @@ def _dist_name(req: str) -> str:
 
 
 def download_wheels(platform: str, wheels_dir: str, offline: bool = False) -> list[str]:
-    """The wheels of :data:`REQUIREMENTS` for one Blender platform, downloaded if missing."""
+    """The shipped wheels for one Blender platform, one per package and Python, downloaded if missing."""
     platform_dir = os.path.join(wheels_dir, platform)
     os.makedirs(platform_dir, exist_ok=True)
+    requirements = shipped_requirements()
 
-    def present():
+    def present(python):
+        tag = "cp" + python.replace(".", "")
         out = []
-        for req in REQUIREMENTS:
+        for req in requirements:
             name, version = _dist_name(req), req.split("==")[1]
-            hits = glob.glob(os.path.join(platform_dir, f"{name}-{version}-cp311-*.whl"),
-                             ) + glob.glob(os.path.join(platform_dir, f"{name}-{version}-*-abi3-*.whl"))
+            hits = glob.glob(os.path.join(platform_dir, f"{name}-{version}-{tag}-*.whl"))
             if not hits:
                 return None
             out.append(sorted(hits)[0])
         return out
 
-    if (have := present()) is not None:
-        return have
-    if offline:
-        raise RuntimeError(f"wheels for {platform} are missing in {platform_dir} (offline)")
-    cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
-           "--python-version", "3.11", "--implementation", "cp", "-d", platform_dir]
-    for tag in PLATFORMS[platform]:
-        cmd += ["--platform", tag]
-    subprocess.run(cmd + REQUIREMENTS, check=True, stdout=subprocess.DEVNULL)
-    if (have := present()) is None:
-        raise RuntimeError(f"pip did not download all wheels for {platform}")
-    return have
+    wheels = []
+    for python in PYTHONS:
+        if (have := present(python)) is None:
+            if offline:
+                raise RuntimeError(f"wheels for {platform}, Python {python} are missing in {platform_dir} (offline)")
+            cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--only-binary=:all:", "--no-deps",
+                   "--python-version", python, "--implementation", "cp", "-d", platform_dir]
+            for tag in PLATFORMS[platform]:
+                cmd += ["--platform", tag]
+            subprocess.run(cmd + requirements, check=True, stdout=subprocess.DEVNULL)
+            if (have := present(python)) is None:
+                raise RuntimeError(f"pip did not download all wheels for {platform}, Python {python}")
+        wheels += have
+    return wheels
 
 
 def stage(stage_dir: str, wheels: list[str], platforms: list[str]) -> str:
@@ -115,9 +138,8 @@ def stage(stage_dir: str, wheels: list[str], platforms: list[str]) -> str:
     return stage_dir
 
 
-def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = False,
-          split_platforms: bool = False) -> list[str]:
-    """Build the zip(s); return their paths."""
+def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = False) -> list[str]:
+    """Build one zip per platform; return their paths."""
     wheels = []
     for p in platforms:
         wheels += download_wheels(p, wheels_dir, offline=offline)
@@ -125,10 +147,8 @@ def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = F
     os.makedirs(out_dir, exist_ok=True)
     cli = blender_ext_cli()
     before = set(glob.glob(os.path.join(out_dir, "*.zip")))
-    cmd = [sys.executable, cli, "build", "--source-dir", stage_dir, "--output-dir", out_dir]
-    if split_platforms:
-        cmd.append("--split-platforms")
-    subprocess.run(cmd, check=True)
+    subprocess.run([sys.executable, cli, "build", "--source-dir", stage_dir, "--output-dir", out_dir,
+                    "--split-platforms"], check=True)
     zips = sorted(set(glob.glob(os.path.join(out_dir, "*.zip"))) - before) or sorted(
         glob.glob(os.path.join(out_dir, "delight-*.zip")))
     for z in zips:
@@ -139,16 +159,15 @@ def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = F
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--platforms", nargs="+", choices=sorted(PLATFORMS), default=sorted(PLATFORMS),
-                   help="platforms to ship wheels for (default: all)")
+                   help="platforms to build a zip for (default: all)")
     p.add_argument("--out", default=os.path.join(ROOT, "dist"), help="output folder (default dist/)")
-    p.add_argument("--wheels-dir", default=os.path.join(ADDON, "wheels"),
-                   help="where downloaded wheels are kept (default blender_addon/wheels/)")
+    p.add_argument("--wheels-dir", default=os.path.join(ROOT, "build", "wheels"),
+                   help="where downloaded wheels are kept (default build/wheels/)")
     p.add_argument("--offline", action="store_true", help="use only wheels already downloaded")
-    p.add_argument("--split-platforms", action="store_true", help="one zip per platform")
     args = p.parse_args(argv)
     try:
         zips = build(args.platforms, os.path.abspath(args.out), os.path.abspath(args.wheels_dir),
-                     offline=args.offline, split_platforms=args.split_platforms)
+                     offline=args.offline)
     except (RuntimeError, subprocess.CalledProcessError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Set up .venv/ if needed, then delight the bundled scene headless into out/demo/ and draw its pictures.
+# Set up .venv/ (Blender 5.2) if needed, then delight the bundled scene headless into out/demo/ and draw its pictures.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash tools/setup.sh
+bash tools/setup.sh 5.2
 scene=blend_fixtures/lambert_sky/scene.blend
 if [ ! -f "$scene" ]; then
   echo "rendering the bundled scene once (Cycles, about a minute)..."

@@ -10,6 +10,7 @@ the ``tiny_scene`` fixture):
 * :func:`set_render` sets the render frame;
 * :func:`make_image` turns a linear array into a ``bpy.types.Image`` (generated
   float, 8-bit sRGB PNG file or EXR file);
+* :func:`new_material` makes a material with nodes on every Blender;
 * :func:`set_background`, :func:`add_image_plane` attach a photo to a camera the
   ways photogrammetry importers do;
 * :func:`render_cycles` renders passes of a camera with Cycles into arrays;
@@ -34,10 +35,19 @@ bpy = pytest.importorskip("bpy")
 import bmesh  # noqa: E402  (only exists once bpy is imported)
 from mathutils import Vector  # noqa: E402
 
-from core.io.exr import read_exr, write_exr  # noqa: E402
+from core.io.exr import exr_parts, read_exr, write_exr  # noqa: E402
 from core.io.photos import linear_to_srgb  # noqa: E402
 
 pytestmark = pytest.mark.bpy
+
+#: Skips a test that opens a checked-in fixture .blend on a Blender that cannot read it.
+needs_fixture_blend = pytest.mark.skipif(
+    bpy.app.version < (4, 5, 0),
+    reason="the checked-in fixture .blend files are saved by Blender 5.0, whose file format Blender < 4.5 cannot read")
+#: Skips a test that renders a scene with blend_fixtures/make_fixtures.py on a Blender older than its API.
+needs_fixture_maker = pytest.mark.skipif(
+    bpy.app.version < (5, 0, 0),
+    reason="blend_fixtures/make_fixtures.py uses the Blender 5.0 API (image_settings.media_type)")
 
 
 @pytest.fixture(autouse=True)
@@ -163,12 +173,20 @@ def set_background(cam, img):
     return bg
 
 
+def new_material(name):
+    """A new material with its node tree (Blender 4 makes one only with ``use_nodes``)."""
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    return mat
+
+
 def add_image_plane(cam, img):
     """A Photogrammetry-Importer-style image plane ``<stem>_image_plane`` in front of ``cam``."""
     stem = cam.name[:-4] if cam.name.endswith("_cam") else cam.name
     me = bpy.data.meshes.new(stem + "_image_plane")
     me.from_pydata([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], [], [(0, 1, 2, 3)])
-    mat = bpy.data.materials.new(stem + "_image_plane")
+    mat = new_material(stem + "_image_plane")
     tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
     tex.image = img
     me.materials.append(mat)
@@ -212,15 +230,32 @@ def render_cycles(scene, cam, folder, passes=("position", "normal", "uv"), sampl
     vl.use_pass_position = "position" in passes
     vl.use_pass_normal = "normal" in passes
     vl.use_pass_uv = "uv" in passes
-    scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    if hasattr(scene.render.image_settings, "media_type"):  # 5.0+
+        scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
     path = os.path.join(folder, name + ".exr")
     scene.render.filepath = path
     bpy.ops.render.render(write_still=True)
-    out = {"rgba": read_exr(path)[0]}
+    out = {"rgba": read_render_pass(path, f"{vl.name}.Combined")}
     for p, part in (("position", "Position"), ("normal", "Normal"), ("uv", "UV")):
         if p in passes:
-            out[p] = read_exr(path, part=f"{vl.name}.{part}")[0]
+            out[p] = read_render_pass(path, f"{vl.name}.{part}")
     return out
+
+
+def read_render_pass(path, name):
+    """Pass ``name`` (``"ViewLayer.Normal"``) of a multilayer EXR that Blender rendered.
+
+    Blender 5 writes each pass as a part of its own; Blender 4 writes one part
+    whose channels are named ``"<name>.<channel>"``.
+    """
+    if name in [n for n, _ in exr_parts(path)]:
+        return read_exr(path, part=name)[0]
+    arr, channels = read_exr(path, part=0)
+    mine = {c[len(name) + 1:]: i for i, c in enumerate(channels) if c.startswith(name + ".")}
+    order = [c for c in "RGBA" if c in mine] + [c for c in mine if c not in "RGBA"]
+    return arr[:, :, [mine[c] for c in order]]
 
 
 def build_scene(folder=None, n_cameras=4, size=(64, 48), photo="background", kind="float", radius=6.0,

@@ -14,13 +14,13 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import ROOT  # noqa: E402
+from conftest import ROOT, needs_fixture_maker  # noqa: E402
 
 from bench.accuracy import texture_rmse, views_rmse  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, needs_fixture_maker]
 
 RES, N_CAMS, SAMPLES, TEX = (160, 120), 8, 16, 128
 

@@ -8,12 +8,12 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import ROOT  # noqa: E402
+from conftest import ROOT, needs_fixture_blend  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD  # noqa: E402
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, needs_fixture_blend]
 
 
 @pytest.mark.parametrize("name,lam", [("lambert_sky", LAMBDA_FIXED), ("photo_sun", LAMBDA_FIXED),

@@ -12,7 +12,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import ROOT, build_scene, make_image, set_background, synth_photo, write_exr  # noqa: E402
+from conftest import ROOT, build_scene, make_image, needs_fixture_maker, set_background, synth_photo, write_exr  # noqa: E402
 from scene_state import files_under  # noqa: E402
 
 from blender_addon.core.io.exr import read_exr  # noqa: E402
@@ -290,6 +290,7 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
 
 
 @pytest.mark.slow
+@needs_fixture_maker
 def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
     """A small Cycles render of blend_fixtures' lambert_sky, both ways of running, the paper's RMSE protocol."""
     sys.path.insert(0, os.path.join(ROOT, "blend_fixtures"))

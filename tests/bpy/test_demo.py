@@ -11,7 +11,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 from matplotlib.image import imread  # noqa: E402
 
-from conftest import ROOT  # noqa: E402
+from conftest import ROOT, needs_fixture_maker  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.evaluate.pictures import BACKGROUND  # noqa: E402
@@ -21,7 +21,7 @@ import demo_pictures as dp  # noqa: E402
 
 sys.path.remove(os.path.join(ROOT, "tools"))
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, needs_fixture_maker]
 
 RES, N_CAMS = (96, 72), 4
 

@@ -1,5 +1,5 @@
-"""Build the extension zip, install it into the bpy module under a temporary
-BLENDER_USER_RESOURCES, enable it and run the operator, in a subprocess."""
+"""Build the Linux extension zip as the README does, install it into the running bpy (Blender 4.2 or 5.2)
+under a temporary BLENDER_USER_RESOURCES, enable it and run the operator, in a subprocess."""
 from __future__ import annotations
 
 import json
@@ -49,6 +49,7 @@ import scipy, OpenEXR
 mod = sys.modules["bl_ext.user_default.delight"]
 print("RESULT " + json.dumps({
     "run": sorted(res), "addon": mod.__file__, "scipy": scipy.__file__, "openexr": OpenEXR.__file__,
+    "scipy_version": scipy.__version__,
     "core": sys.modules["bl_ext.user_default.delight.core.solve.solver"].__file__,
     "files": sorted(os.listdir(out)),
     "base_color": bpy.data.objects["Target"].material_slots[0].material.node_tree.nodes["Principled BSDF"]
@@ -57,12 +58,22 @@ print("RESULT " + json.dumps({
 '''
 
 
+def builder_python():
+    """The interpreter the README builds the extension with (.venv), so every Blender tests the same zip."""
+    venv = os.path.join(ROOT, ".venv", "bin", "python")
+    return venv if os.path.exists(venv) else sys.executable
+
+
 @pytest.fixture(scope="module")
 def extension_zip(tmp_path_factory):
     out = tmp_path_factory.mktemp("dist")
-    # Downloaded wheels are cached in the git-ignored build folder.
-    zips = build_extension.build(["linux-x64"], str(out), os.path.join(ROOT, "build", "wheels"))
-    assert len(zips) == 1
+    # Downloaded wheels are cached in the git-ignored build folder (the default --wheels-dir).
+    p = subprocess.run([builder_python(), os.path.join(ROOT, "tools", "build_extension.py"),
+                        "--platforms", "linux-x64", "--out", str(out)], capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    zips = sorted(str(x) for x in out.glob("*.zip"))
+    assert [os.path.basename(z) for z in zips] == ["delight-0.1.0-linux_x64.zip"]
+    assert p.stdout.splitlines()[-1] == zips[0]  # the path comes last
     return zips[0]
 
 
@@ -74,12 +85,18 @@ def test_zip_holds_the_add_on_the_real_core_and_the_wheels(extension_zip):
     assert {"__init__.py", "operator.py", "pipeline.py", "core/__init__.py", "core/solve/solver.py"} <= set(names)
     # core is real files, not a symlink entry (mode bits 0o120000).
     assert (infos["core/solve/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
-    wheels = [n for n in names if n.startswith("wheels/")]
-    assert any(w.startswith("wheels/scipy-") and "cp311" in w and "x86_64" in w for w in wheels)
-    assert any(w.startswith("wheels/openexr-") and "cp311" in w for w in wheels)
-    assert 'id = "delight"' in manifest and 'platforms = ["linux-x64"]' in manifest
+    wheels = sorted(n[len("wheels/"):] for n in names if n.startswith("wheels/"))
+    # One wheel per package and Blender Python (3.11: Blender 4.2-5.0; 3.13: 5.1-5.2), all for Linux x64,
+    # at the versions requirements.txt pins.
+    pins = dict(r.split("==") for r in build_extension.shipped_requirements())
+    expected = sorted(f"{name}-{pins[name]}-{tag}" for name in ("openexr", "scipy") for tag in ("cp311", "cp313"))
+    assert sorted("-".join(w.split("-")[:3]) for w in wheels) == expected
+    assert all(w.endswith("_x86_64.whl") and "linux" in w for w in wheels), wheels
+    assert 'id = "delight"' in manifest and 'blender_version_min = "4.2.0"' in manifest
+    generated = manifest.split("[build.generated]")[1]
+    assert 'platforms = ["linux-x64"]' in generated
     for w in wheels:
-        assert f'"./{w}"' in manifest
+        assert f'"./wheels/{w}"' in generated
 
 
 def test_installed_extension_runs_the_operator(extension_zip, tmp_path):
@@ -100,5 +117,9 @@ def test_installed_extension_runs_the_operator(extension_zip, tmp_path):
     ext = str(user / "extensions")
     for key in ("addon", "scipy", "openexr", "core"):
         assert r[key].startswith(ext), (key, r[key])
+    # Blender installed the wheels of its own Python, the pinned ones.
+    assert f"python{sys.version_info[0]}.{sys.version_info[1]}" in r["scipy"]
+    pins = dict(q.split("==") for q in build_extension.shipped_requirements())
+    assert r["scipy_version"] == pins["scipy"]
     assert {"Target_albedo.exr", "lighting.json", "report.json", "views"} <= set(r["files"])
     assert r["base_color"] == "Delight Albedo"

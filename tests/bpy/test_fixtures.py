@@ -15,6 +15,8 @@ bpy = pytest.importorskip("bpy")
 
 pytestmark = pytest.mark.bpy
 
+from conftest import needs_fixture_blend, needs_fixture_maker  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 FIXTURES = os.path.join(ROOT, "blend_fixtures")
 
@@ -52,6 +54,7 @@ def _cameras(scene):
     return sorted((o for o in scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
 
 
+@needs_fixture_maker
 def test_user_file_has_mesh_cameras_photos_and_no_ground_truth(small_scene, mf):
     scene_dir, record = small_scene
     scene = _open(os.path.join(scene_dir, "scene.blend"))
@@ -88,6 +91,7 @@ def test_user_file_has_mesh_cameras_photos_and_no_ground_truth(small_scene, mf):
         assert img.colorspace_settings.name == "Linear Rec.709"
 
 
+@needs_fixture_maker
 def test_ground_truth_texture(small_scene, mf):
     scene_dir, record = small_scene
     gt_info = record["albedo_gt"]
@@ -107,6 +111,7 @@ def test_ground_truth_texture(small_scene, mf):
     assert np.all(np.any(np.all(gt[~inside][:, None, :3] == regions[None], axis=2), axis=1))
 
 
+@needs_fixture_maker
 def test_photos_are_plausible(small_scene, mf):
     scene_dir, record = small_scene
     for cam in record["cameras"]:
@@ -122,6 +127,7 @@ def test_photos_are_plausible(small_scene, mf):
         assert (rgb.min(axis=1) >= 1.0).mean() < 0.05                   # not burnt out
 
 
+@needs_fixture_maker
 def test_scene_json_cameras_match_the_blend_file(small_scene):
     """K_core / R_core / t_core in scene.json project like Blender's own camera."""
     from bpy_extras.object_utils import world_to_camera_view
@@ -147,6 +153,7 @@ def test_scene_json_cameras_match_the_blend_file(small_scene):
         np.testing.assert_allclose(xy, np.array(ref), atol=2e-3)
 
 
+@needs_fixture_maker
 def test_per_view_ground_truth_is_the_texture_through_the_uv_map(small_scene, mf):
     """The render's material sampled albedo_gt.exr through the mesh's UV map with the recorded conventions.
 
@@ -217,6 +224,7 @@ def test_per_view_ground_truth_is_the_texture_through_the_uv_map(small_scene, mf
 SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light")
 
 
+@needs_fixture_blend
 @pytest.mark.parametrize("name", SCENES)
 def test_checked_in_fixture_is_complete(name, mf):
     scene_dir = os.path.join(FIXTURES, name)

@@ -9,7 +9,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import build_scene  # noqa: E402
+from conftest import build_scene, new_material  # noqa: E402
 from scene_state import files_under, scene_state  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
@@ -32,7 +32,7 @@ def options(out, **kw):
 
 def original_material(obj):
     """A material whose Base Color comes from an image through a Mapping node (the "original")."""
-    mat = bpy.data.materials.new("Photo")
+    mat = new_material("Photo")
     nt = mat.node_tree
     img = bpy.data.images.new("photo_bake", 4, 4)
     tex = nt.nodes.new("ShaderNodeTexImage")

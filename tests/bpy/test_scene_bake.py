@@ -25,6 +25,7 @@ CYCLES_CASES = {
     "horizontal-shift": ((80, 60), (1.0, 1.0), "HORIZONTAL", (0.12, -0.07)),
     "vertical-shift-portrait": ((56, 80), (1.0, 1.0), "VERTICAL", (-0.09, 0.11)),
     "auto-portrait": ((48, 72), (1.0, 1.0), "AUTO", (0.05, 0.05)),
+    "sharp-edges": ((80, 60), (1.0, 1.0), "HORIZONTAL", (0.0, 0.0)),
 }
 # (Blender 5.0 cannot write a multilayer EXR with a pixel aspect other than 1 --
 # "Conflicting attributes ... pixelAspectRatio" -- so pixel aspect is checked
@@ -35,8 +36,14 @@ CYCLES_CASES = {
 def test_bake_matches_cycles_passes(case, tmp_path):
     (w, h), aspect, fit, shift = CYCLES_CASES[case]
     scene = set_render(w, h, pixel_aspect=aspect)
-    # Smooth sphere with some flat faces, moved, rotated and non-uniformly scaled.
-    obj = add_uv_sphere(segments=20, rings=10, flat_faces=range(0, 200, 3))
+    # Smooth sphere with some flat faces (or sharp edges), moved, rotated and non-uniformly scaled: Cycles
+    # shades these with vertex or corner normals depending on its version.
+    if case == "sharp-edges":
+        obj = add_uv_sphere(segments=20, rings=10)
+        sharp = obj.data.attributes.new("sharp_edge", "BOOLEAN", "EDGE")
+        sharp.data.foreach_set("value", np.arange(len(obj.data.edges)) % 4 == 0)
+    else:
+        obj = add_uv_sphere(segments=20, rings=10, flat_faces=range(0, 200, 3))
     obj.location = (0.2, -0.1, 0.3)
     obj.rotation_euler = (0.3, 0.2, 0.5)
     obj.scale = (1.0, 1.2, 0.9)
