@@ -290,8 +290,8 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
 
 
 @pytest.mark.parametrize("exc, line", [
-    (MemoryError(), "error: out of memory: lower the working resolution (--working-res) or the texture size "
-                    "(--texture-size)"),
+    (MemoryError(), ("error: out of memory: lower the working resolution (--working-res) or the texture size "
+                     "(--texture-size)")),
     (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
 ])
 def test_any_failure_is_one_error_line_and_a_traceback_only_with_debug(tmp_path, monkeypatch, capsys, exc, line):
