@@ -11,9 +11,10 @@ the settings the panel shows, and checked by the same :func:`core.options.check`
 It writes ``<object>_albedo.exr``, ``views/<camera>.exr``, ``lighting.json``
 and ``report.json`` into ``--out`` and prints progress lines. Exit status: 0
 on success; 1 on bad input, with one line ``error: ...`` on stderr, nothing
-written and the .blend untouched (a setting out of its range included); 2 on a
-usage error (an unknown option, a word where a number belongs); 130 when
-interrupted.
+written and the .blend untouched (a setting out of its range included), and on
+any other failure (a full disk, out of memory, a bug), with one ``error:`` line
+too (``--debug`` prints the traceback before it); 2 on a usage error (an
+unknown option, a word where a number belongs); 130 when interrupted.
 """
 if __name__ == "__main__" and not __package__:
     # Run as a script by `blender -P`: import the package by name from beside
@@ -43,6 +44,7 @@ CLI_FIELDS = ("object_name", "camera_names", "images_dir", "lam", "mu", "max_ite
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
+    from .core.errors import DEBUG_HELP
     from .core.options import add_arguments
     p = argparse.ArgumentParser(
         prog="python -m blender_addon" if with_blend else "blender -b SCENE.blend -P blender_addon/cli.py --",
@@ -51,6 +53,7 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     if with_blend:
         p.add_argument("blend", metavar="SCENE.blend", help="the scene to read")
     add_arguments(p, CLI_FIELDS)
+    p.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     return p
 
 
@@ -76,7 +79,7 @@ def main(argv=None, blend_loaded: bool = False) -> int:
 
     import bpy
 
-    from .core.errors import REPORTED, DelightError, report_failure
+    from .core.errors import DelightError, report_failure
     from .core.progress import ProgressPrinter
     from .pipeline import run
 
@@ -97,8 +100,8 @@ def main(argv=None, blend_loaded: bool = False) -> int:
             raise DelightError("no .blend was loaded (run: blender -b SCENE.blend -P cli.py -- ...)")
         print(f"delight: {bpy.data.filepath}: method {options.method}", flush=True)
         report = run(bpy.context.scene, options, progress=ProgressPrinter(sys.stdout))
-    except (*REPORTED, KeyboardInterrupt) as exc:
-        return report_failure(exc, sys.stderr)
+    except (Exception, KeyboardInterrupt) as exc:   # one line for any failure; the traceback with --debug
+        return report_failure(exc, sys.stderr, debug=args.debug)
     for w in report.warnings:
         print(f"warning: {w}", flush=True)
     times = ", ".join(f"{k} {v:.2f} s" for k, v in report.times.items())

@@ -1,10 +1,13 @@
 """The Delight operator (``delight.run``).
 
 In the GUI it is modal: the scene is read (gather and bake) on the main
-thread, the solve runs in a worker thread, a timer shows its progress, Esc
-cancels, and the results are written on the main thread at the end. A cancel
-or an error leaves the scene as it was. In background mode, and on redo, it
-runs in-line and prints its progress.
+thread, the solve runs in a worker thread, a timer drains its progress into a
+progress bar (in the panel and the status bar: stage, iteration, time left),
+Esc cancels, and the results are written on the main thread at the end. A
+cancel or an error leaves the scene as it was, and any failure is one line in
+the report (an unexpected one's traceback goes to the system console only). In
+background mode, and on redo (Adjust Last Operation), it runs in-line and
+prints its progress.
 """
 from __future__ import annotations
 
@@ -18,11 +21,12 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import pipeline
-from .core.errors import REPORTED, Cancelled, DelightError
+from .core.errors import Cancelled, DelightError, failure_message, is_expected
 from .core.options import OPTIONS
-from .core.progress import ProgressPrinter
+from .core.progress import ProgressPrinter, ProgressState
 
-__all__ = ["DELIGHT_OT_run", "Job", "spec_property", "spec_labels", "set_status", "get_status"]
+__all__ = ["DELIGHT_OT_run", "Job", "spec_property", "spec_labels", "set_status", "get_status", "progress_bar",
+           "draw_progress", "draw_status_bar", "begin_progress", "end_progress"]
 
 
 def spec_labels(name: str) -> dict:
@@ -81,6 +85,64 @@ def get_status() -> str:
     return getattr(wm, "delight_status", "") if wm is not None else ""
 
 
+# -- the progress bar (GUI) ------------------------------------------------------------------------
+_RUN = None   # the ProgressState of the run going on in the GUI, or None
+_ESC = "Delight: Esc cancels"
+
+
+def progress_bar():
+    """What the progress bar shows while a run goes in the GUI: ``(factor, text)``; None when none goes.
+
+    The text is the stage, the iteration and the time left: "solve: iteration 12/40 — about 35 s left".
+    """
+    return None if _RUN is None else _RUN.bar()
+
+
+def draw_progress(layout) -> bool:
+    """Draw the progress bar into ``layout`` if a run goes; return whether it did."""
+    bar = progress_bar()
+    if bar is None:
+        return False
+    factor, text = bar
+    layout.progress(factor=factor, type="BAR", text=text)
+    return True
+
+
+def draw_status_bar(self, context):
+    """The bar at the end of the status bar (appended to ``STATUSBAR_HT_header`` while a run goes)."""
+    row = self.layout.row()
+    row.ui_units_x = 18   # a header row is only as wide as its items ask
+    draw_progress(row)
+
+
+def begin_progress(max_iter=None) -> ProgressState:
+    """Start showing a run's progress (the panel's bar and the status bar's); return its progress callback."""
+    global _RUN
+    end_progress()
+    _RUN = ProgressState(max_iter)
+    bpy.types.STATUSBAR_HT_header.append(draw_status_bar)
+    return _RUN
+
+
+def end_progress():
+    """Stop showing progress: the panel shows its button again and the status bar loses the bar."""
+    global _RUN
+    _RUN = None
+    bpy.types.STATUSBAR_HT_header.remove(draw_status_bar)
+
+
+def _redraw_progress(context, status_text):
+    """Redraw the panel (the sidebar of every 3D view) and set the status text, which redraws the status bar."""
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                for region in area.regions:
+                    if region.type == "UI":
+                        region.tag_redraw()
+    if context.workspace is not None:
+        context.workspace.status_text_set(status_text)
+
+
 class Job:
     """:func:`pipeline.compute` in a worker thread, with a progress queue and a cancel flag.
 
@@ -102,8 +164,6 @@ class Job:
                                              cancel=self.cancel_event.is_set)
         except BaseException as exc:  # reported on the main thread
             self.error = exc
-            if not isinstance(exc, REPORTED):
-                traceback.print_exc()
 
     def start(self):
         self._thread.start()
@@ -154,6 +214,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     _job = None
     _timer = None
     _prepared = None
+    _drawn = None   # the bar as last drawn
 
     # -- options ---------------------------------------------------------------------------------
     def pipeline_options(self) -> pipeline.Options:
@@ -188,12 +249,16 @@ class DELIGHT_OT_run(bpy.types.Operator):
         return {"FINISHED"}
 
     def _fail(self, exc):
+        """Report a failed run in one line; an unexpected error's traceback goes to the console only."""
         if isinstance(exc, Cancelled):
             self.report({"WARNING"}, "Delight cancelled; nothing was changed")
             set_status("Cancelled")
-        else:
-            self.report({"ERROR"}, f"Delight: {exc}")
-            set_status(f"Error: {exc}")
+            return {"CANCELLED"}
+        if not is_expected(exc):
+            traceback.print_exception(type(exc), exc, exc.__traceback__)
+        message = failure_message(exc, front="panel")
+        self.report({"ERROR"}, f"Delight: {message}")
+        set_status(f"Error: {message}")
         return {"CANCELLED"}
 
     # -- in-line (background, redo) ----------------------------------------------------------------
@@ -201,7 +266,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
         progress = ProgressPrinter(sys.stdout) if bpy.app.background else None
         try:
             report = pipeline.run(context.scene, self.pipeline_options(), progress=progress)
-        except REPORTED as exc:
+        except Exception as exc:   # any failure is one line in the report, never a traceback
             return self._fail(exc)
         return self._done(report)
 
@@ -209,48 +274,55 @@ class DELIGHT_OT_run(bpy.types.Operator):
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
+        if _RUN is not None:
+            self.report({"WARNING"}, "Delight is already running (Esc cancels it)")
+            return {"CANCELLED"}
         wm = context.window_manager
+        state = begin_progress(self.max_iter if self.method != "project" else None)
+        # The scene is read on the main thread, so nothing redraws meanwhile: the cursor shows the progress.
         wm.progress_begin(0, 100)
         try:
             def progress(f, m=""):
+                state(f, m)
                 wm.progress_update(int(100 * f))
-                context.workspace.status_text_set(f"Delight: {m}")
             self._prepared = pipeline.prepare(context.scene, self.pipeline_options(), progress=progress)
-        except REPORTED as exc:
+        except Exception as exc:
             self._cleanup(context)
             return self._fail(exc)
-        except BaseException:
-            self._cleanup(context)
-            raise
+        finally:
+            wm.progress_end()
         self._job = Job(self._prepared).start()
         self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.modal_handler_add(self)
-        context.workspace.status_text_set("Delight: solving (Esc cancels)")
+        self._drawn = None
+        _redraw_progress(context, _ESC)
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
         if event.type == "ESC" and event.value == "PRESS":
             self._job.cancel()
-            context.workspace.status_text_set("Delight: cancelling...")
+            _redraw_progress(context, "Delight: cancelling")
             return {"RUNNING_MODAL"}
         if event.type != "TIMER" or event.timer != self._timer:
             return {"PASS_THROUGH"}
-        for fraction, message in self._job.poll():
-            context.window_manager.progress_update(int(100 * fraction))
-            context.workspace.status_text_set(f"Delight: {message}  (Esc cancels)")
+        if _RUN is not None:
+            for fraction, message in self._job.poll():
+                _RUN(fraction, message)
+            bar = _RUN.bar()
+            if bar != self._drawn:   # redraw only when the bar changed
+                self._drawn = bar
+                _redraw_progress(context, "Delight: cancelling" if self._job.cancel_event.is_set() else _ESC)
         if not self._job.done:
             return {"RUNNING_MODAL"}
         job = self._job
         self._cleanup(context)
         if job.error is not None:
-            if not isinstance(job.error, REPORTED):
-                raise job.error
             return self._fail(job.error)
         if job.cancel_event.is_set():
             return self._fail(Cancelled("cancelled"))
         try:
             report = pipeline.finish(context.scene, self._prepared, job.computed)
-        except (DelightError, ValueError) as exc:
+        except Exception as exc:
             return self._fail(exc)
         finally:
             self._prepared = None
@@ -268,9 +340,8 @@ class DELIGHT_OT_run(bpy.types.Operator):
             wm.event_timer_remove(self._timer)
             self._timer = None
         self._job = None
-        wm.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
+        end_progress()
+        _redraw_progress(context, None)   # the panel shows its button again, the status bar its own text
 
 
 classes = (DELIGHT_OT_run,)
@@ -283,6 +354,7 @@ def register():
 
 
 def unregister():
+    end_progress()
     for c in reversed(classes):
         bpy.utils.unregister_class(c)
     del bpy.types.WindowManager.delight_status

@@ -5,7 +5,7 @@ import bpy
 from bpy.props import PointerProperty
 
 from . import previews
-from .operator import DELIGHT_OT_run, get_status, spec_labels, spec_property
+from .operator import DELIGHT_OT_run, draw_progress, get_status, spec_labels, spec_property
 
 __all__ = ["DelightSettings", "VIEW3D_PT_delight", "operator_settings"]
 
@@ -88,9 +88,13 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         col.prop(s, "out_dir")
         col.prop(s, "overwrite")
 
-        op = layout.operator(DELIGHT_OT_run.bl_idname, icon="SHADING_TEXTURE")
-        for key, value in operator_settings(s).items():
-            setattr(op, key, value)
+        col = layout.column()
+        if draw_progress(col):   # a run goes: its bar instead of the button
+            col.label(text="Esc cancels", icon="CANCEL")
+        else:
+            op = col.operator(DELIGHT_OT_run.bl_idname, icon="SHADING_TEXTURE")
+            for key, value in operator_settings(s).items():
+                setattr(op, key, value)
 
         status = get_status()
         if status:

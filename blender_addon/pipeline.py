@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .core.checks import check_photos, check_uv_layout
-from .core.errors import DelightError
+from .core.errors import Cancelled, DelightError
 from .core.io import outputs as _outputs
 from .core.io.names import safe_name
 from .core.pipeline import DEFAULTS, METHODS, Computed, Options, check_cancel, stage_progress
@@ -214,6 +214,19 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     The files are written all or nothing (:func:`core.io.outputs.write_outputs`)
     before the scene is touched; ``cancel`` is checked until they are in place.
+    With ``options.save_blend`` the .blend is saved last, once the files are in
+    place and the material is wired.
+
+    Raises
+    ------
+    DelightError
+        The object is gone or cannot be edited, or a file could not be written
+        (nothing was changed); or the .blend could not be saved (the new files
+        are in place, the .blend as it was).
+    Cancelled
+        ``cancel()`` returned True before the files were in place (the folder
+        and the scene are as they were); or Ctrl+C came after (``written`` is
+        the output folder).
     """
     import bpy
 
@@ -244,15 +257,26 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     files = _outputs.write_outputs(prepared.out_dir, contents, report, overwrite=opt.overwrite,
                                    inputs=_input_files(inputs), cancel=cancel)
-    stage(0.6, "material")
-    image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
-    mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
-    _previews.update(inputs.object_name, prepared, computed)   # pictures for the panel
+    # The files are in place: from here on a failure says so. The .blend is saved last.
     saved = None
-    if opt.save_blend:
-        stage(0.9, "saving the .blend")
-        bpy.ops.wm.save_mainfile(filepath=bpy.data.filepath)
-        saved = bpy.data.filepath
+    try:
+        stage(0.6, "material")
+        image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
+        mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
+        _previews.update(inputs.object_name, prepared, computed)   # pictures for the panel
+        if opt.save_blend:
+            stage(0.9, "saving the .blend")
+            try:
+                bpy.ops.wm.save_mainfile(filepath=bpy.data.filepath)
+            except RuntimeError as exc:
+                why = str(exc).strip().removeprefix("Error:").strip()
+                raise DelightError(f"the new outputs are in {prepared.out_dir}, but the .blend could not be "
+                                   f"saved: {why}") from None
+            saved = bpy.data.filepath
+    except KeyboardInterrupt:
+        blend = "" if not opt.save_blend else "; the .blend was saved" if saved else "; the .blend was not saved"
+        raise Cancelled(f"interrupted after the new outputs were written to {prepared.out_dir}{blend}",
+                        written=prepared.out_dir) from None
     times["write"] = time.perf_counter() - t
     stage(1.0, "done")
     return RunReport(object_name=inputs.object_name, method=opt.method, out_dir=prepared.out_dir, files=files,
@@ -276,9 +300,11 @@ def run(scene, options: Options, progress=None, cancel=None) -> RunReport:
     Raises
     ------
     DelightError
-        Bad input; nothing was changed.
+        Bad input; nothing was changed. Or the .blend could not be saved
+        (:func:`finish`).
     Cancelled
-        ``cancel()`` returned True; nothing was changed.
+        ``cancel()`` returned True; nothing was changed (``cancel`` is checked
+        until the files are in place). Or Ctrl+C after that (:func:`finish`).
     """
     prepared = prepare(scene, options, progress, cancel)
     computed = compute(prepared, progress, cancel)

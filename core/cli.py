@@ -24,9 +24,10 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 The files are written all or nothing, only after the solver succeeded, and
 never over a file Delight did not write unless ``--overwrite``
 (:mod:`core.io.outputs`). Bad input (a missing or invalid bundle, a setting out
-of its range, a file in the way or an unwritable DIR, found before the solve)
-and a failed write end with one ``error:`` line on stderr and exit status 1,
-Ctrl+C with 130, a usage error (an unknown option, a word where a number
+of its range, a file in the way or an unwritable DIR, found before the solve),
+a failed write and any other failure (out of memory, a bug) end with one
+``error:`` line on stderr and exit status 1 (``--debug`` prints the traceback
+too), Ctrl+C with 130, a usage error (an unknown option, a word where a number
 belongs) with 2. The solver's options are built from :data:`core.options.SPEC`,
 as the add-on's.
 """
@@ -40,7 +41,7 @@ import time
 
 import numpy as np
 
-from .errors import REPORTED, DelightError, report_failure
+from .errors import DEBUG_HELP, DelightError, report_failure
 from .io.bundle import load_bundle
 from .io.outputs import LIGHTING, REPORT, channel_names, lighting_json, prepare_outputs, rgba, view_files
 from .io.outputs import write_outputs as _write_all
@@ -137,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="unknowns per texel or per pixel (default: texture if the bundle has a "
                         "texture layout, else image)")
     add_arguments(s, SOLVER_FIELDS)
+    s.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     return parser
 
 
@@ -182,5 +184,5 @@ def main(argv=None) -> int:
         return 2
     try:
         return _solve(args)
-    except (*REPORTED, KeyboardInterrupt) as exc:
-        return report_failure(exc, sys.stderr)
+    except (Exception, KeyboardInterrupt) as exc:   # one line for any failure; the traceback with --debug
+        return report_failure(exc, sys.stderr, debug=args.debug, front="core")

@@ -3,15 +3,19 @@
 A progress callback is ``progress(fraction, message="")`` with ``fraction`` in [0, 1]; a cancel callback is
 ``cancel() -> bool``. Each stage reports its own 0..1 through :func:`stage_progress`, which maps it into the
 stage's share of the whole run (:data:`STAGES`); the stages call :func:`check_cancel` between steps. The command
-lines print progress with :class:`ProgressPrinter`; the GUI operator draws it.
+lines print progress with :class:`ProgressPrinter`; the GUI operator draws a bar from a :class:`ProgressState`.
+Both add the time left that :class:`TimeLeft` estimates.
 """
 from __future__ import annotations
 
+import re
 import sys
+import time
 
 from .errors import Cancelled
 
-__all__ = ["STAGES", "stage_progress", "check_cancel", "ProgressPrinter"]
+__all__ = ["STAGES", "stage_progress", "check_cancel", "TimeLeft", "format_time_left", "short_message",
+           "ProgressState", "ProgressPrinter"]
 
 #: Share of the progress bar of each stage of a run, (start, end).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
@@ -37,10 +41,126 @@ def check_cancel(cancel) -> None:
         raise Cancelled("cancelled")
 
 
-class ProgressPrinter:
-    """A progress callback for a headless run: prints ``delight:  42.0% solve: ...`` lines.
+class TimeLeft:
+    """An estimate of the seconds a run has left, from its progress fraction over time.
 
-    A line is printed when the message changes or the bar moves by ``step``.
+    Feed it ``(fraction, time)`` pairs with :meth:`update`. The rate is measured from the first pair (so time
+    spent before the estimate started, such as the GUI's bake, does not count) and the estimate is smoothed
+    over the updates, so that one quick or slow step does not make it jump.
+
+    Parameters
+    ----------
+    warmup : float
+        Seconds after the first pair before there is an estimate.
+    min_progress : float
+        The least progress (a fraction of the whole run) since the first pair before there is an estimate.
+    smoothing : float
+        Weight of each new raw estimate, in (0, 1]; 1 does not smooth.
+    """
+
+    def __init__(self, warmup: float = 2.0, min_progress: float = 0.01, smoothing: float = 0.3):
+        if not 0.0 < smoothing <= 1.0:
+            raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
+        self.warmup, self.min_progress, self.smoothing = warmup, min_progress, smoothing
+        self._start = None          # (fraction, time) of the first pair
+        self._estimate = None       # seconds left at self._time
+        self._time = None
+
+    def update(self, fraction: float, now: float) -> float | None:
+        """Take the run's ``fraction`` (0..1) at time ``now`` (seconds); return :meth:`estimate` at ``now``."""
+        fraction, now = min(max(float(fraction), 0.0), 1.0), float(now)
+        if self._start is None:
+            self._start = (fraction, now)
+        f0, t0 = self._start
+        if fraction >= 1.0:
+            self._estimate, self._time = 0.0, now
+        elif now - t0 >= self.warmup and fraction - f0 >= self.min_progress and fraction > f0:
+            raw = (now - t0) * (1.0 - fraction) / (fraction - f0)
+            if self._estimate is None:
+                self._estimate = raw
+            else:   # the last estimate, aged to now, moved towards the new one
+                aged = max(self._estimate - (now - self._time), 0.0)
+                self._estimate = aged + self.smoothing * (raw - aged)
+            self._time = now
+        return self.estimate(now)
+
+    def estimate(self, now: float) -> float | None:
+        """Seconds left at ``now`` (counting down since the last update), or None while there is no estimate."""
+        if self._estimate is None:
+            return None
+        return max(self._estimate - max(float(now) - self._time, 0.0), 0.0)
+
+
+def format_time_left(seconds: float | None) -> str:
+    """``"about 35 s left"``, ``"about 4 min left"``; ``""`` for None and at the end (under a second)."""
+    if seconds is None or seconds < 1:
+        return ""
+    if seconds < 10:
+        return "a few seconds left"
+    if seconds < 60:
+        return f"about {5 * round(seconds / 5)} s left"
+    minutes = round(seconds / 60)
+    if minutes < 60:
+        return f"about {minutes} min left"
+    return f"about {minutes // 60} h {minutes % 60:02d} min left"
+
+
+# The solver's messages (core.solve.solver): "iteration 12, energy 3.2", each coarse level prefixing its own
+# "coarse level 256: ".
+_ENERGY = re.compile(r"(iteration \d+), energy \S+")
+_COARSE = re.compile(r"(?:coarse level \S+: )+")
+_MAIN_ITERATION = re.compile(r"^(solve: )(iteration \d+)\b")
+
+
+def short_message(message: str, max_iter: int | None = None) -> str:
+    """A progress message shortened for a progress bar.
+
+    The solver's ``"solve: coarse level 256: coarse level 128: iteration 3, energy 1.2"`` becomes
+    ``"solve: coarse level 128, iteration 3"``, and ``"solve: iteration 12, energy 1.2"`` becomes
+    ``"solve: iteration 12/40"`` with ``max_iter=40`` (the most iterations at the full size; coarse levels have
+    their own). Other messages are returned as they are.
+    """
+    text = _ENERGY.sub(r"\1", message)
+    text = _COARSE.sub(lambda m: m.group(0).split(": ")[-2] + ", ", text)
+    if max_iter:
+        text = _MAIN_ITERATION.sub(lambda m: f"{m.group(1)}{m.group(2)}/{int(max_iter)}", text)
+    return text
+
+
+class ProgressState:
+    """A progress callback that keeps the latest fraction and message, for a progress bar.
+
+    Parameters
+    ----------
+    max_iter : int, optional
+        The run's most iterations at the full size, shown as "iteration 12/40".
+    clock : callable() -> float
+        The time in seconds (``time.monotonic``).
+    """
+
+    def __init__(self, max_iter: int | None = None, clock=time.monotonic):
+        self.max_iter, self.clock = max_iter, clock
+        self.fraction, self.message = 0.0, ""
+        self.time_left = TimeLeft()
+
+    def __call__(self, fraction, message=""):
+        self.fraction = min(max(float(fraction), 0.0), 1.0)
+        if message:
+            self.message = message
+        self.time_left.update(self.fraction, self.clock())
+
+    def bar(self) -> tuple[float, str]:
+        """What the bar shows: ``(factor, text)``, e.g. ``(0.62, "solve: iteration 12/40 — about 35 s left")``."""
+        text = short_message(self.message, self.max_iter) or "starting"
+        left = format_time_left(self.time_left.estimate(self.clock()))
+        return self.fraction, f"{text} — {left}" if left else text
+
+
+class ProgressPrinter:
+    """A progress callback for a headless run: prints ``delight:  42.0% solve: ... (about 35 s left)`` lines.
+
+    A line is printed when the message changes or the bar moves by ``step``; it ends with the time left once
+    :class:`TimeLeft` has an estimate.
 
     Parameters
     ----------
@@ -48,14 +168,19 @@ class ProgressPrinter:
         Where the lines go; default ``sys.stdout`` at the time of each line.
     step : float
         The least move of the bar that prints a line with an unchanged message.
+    clock : callable() -> float
+        The time in seconds (``time.monotonic``).
     """
 
-    def __init__(self, stream=None, step: float = 0.05):
-        self.stream, self.step = stream, step
+    def __init__(self, stream=None, step: float = 0.05, clock=time.monotonic):
+        self.stream, self.step, self.clock = stream, step, clock
+        self.time_left = TimeLeft()
         self._last = (None, -1.0)
 
     def __call__(self, fraction, message=""):
         fraction = float(fraction)
+        left = format_time_left(self.time_left.update(fraction, self.clock()))
         if message != self._last[0] or abs(fraction - self._last[1]) >= self.step:
-            print(f"delight: {100 * fraction:5.1f}% {message}", file=self.stream or sys.stdout, flush=True)
+            print(f"delight: {100 * fraction:5.1f}% {message}" + (f" ({left})" if left else ""),
+                  file=self.stream or sys.stdout, flush=True)
             self._last = (message, fraction)

@@ -289,6 +289,29 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
     assert not (tmp_path / "out").exists() and digest(blend) == before
 
 
+@pytest.mark.parametrize("exc, line", [
+    (MemoryError(), ("error: out of memory: lower the working resolution (--working-res) or the texture size "
+                     "(--texture-size)")),
+    (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
+])
+def test_any_failure_is_one_error_line_and_a_traceback_only_with_debug(tmp_path, monkeypatch, capsys, exc, line):
+    from blender_addon import cli, pipeline
+    blend, _ = save_scene(tmp_path)
+    before = digest(blend)
+
+    def fail(*args, **kwargs):   # the run fails as it would on a machine out of memory, or with a bug
+        raise exc
+    monkeypatch.setattr(pipeline, "run", fail)
+    argv = [blend, *FAST, "--out", str(tmp_path / "out")]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert [l for l in err.splitlines() if l] == [line]
+    assert cli.main([*argv, "--debug"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("Traceback") and "in fail" in err and err.splitlines()[-1] == line
+    assert not (tmp_path / "out").exists() and digest(blend) == before
+
+
 @pytest.mark.slow
 @needs_fixture_maker
 def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
