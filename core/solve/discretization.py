@@ -286,7 +286,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
 
 
 def _splats(problem: Problem, offsets: np.ndarray):
-    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel and float64 weight (view_weight included)."""
+    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight."""
     inside = problem.texture.inside
     tex_obs, pix_obs, w_obs = [], [], []
     for i in range(problem.n_views):
