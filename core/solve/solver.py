@@ -409,7 +409,7 @@ class _Level:
     label: str = ""
 
 
-def _ladder(problem, params: SolverParams) -> list:
+def _ladder(problem, params: SolverParams) -> list[_Level]:
     """The levels to solve, coarsest first: the problem, then up to ``levels - 1`` coarsenings of it.
 
     In the texture domain each level's texture is first capped at
