@@ -145,54 +145,67 @@ def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000
     # Subsample before testing so memory stays bounded, with a margin for the
     # pairs the tests reject (typically half); the surplus is trimmed at the end.
     keep_frac = min(1.0, 3.0 * max_pairs / max(candidates, 1))
-
-    # Each view's own depth map (camera-space z of its hits) and flat normals.
-    depth, flat_n, flat_m = [], [], []
-    for cam, pos, mk, nrm in zip(cameras, positions, masks, normals):
-        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
-        z = np.full(mk.size, np.nan)
-        sel = mk.ravel()
-        z[sel] = pos[sel] @ cam.R[2] + cam.t[2]
-        depth.append(z)
-        flat_n.append(np.asarray(nrm, dtype=np.float64).reshape(-1, 3))
-        flat_m.append(sel)
-
-    out = {"view_a": [], "pixel_a": [], "view_b": [], "xy_b": []}
+    views = _flat_views(cameras, positions, masks, normals)
+    out = []
     for a in range(m):
-        pix = np.flatnonzero(flat_m[a])
+        pix = np.flatnonzero(views[a][2])
         if keep_frac < 1.0:
             pix = np.sort(rng.choice(pix, size=int(round(len(pix) * keep_frac)), replace=False))
         if pix.size == 0:
             continue
         p = np.asarray(positions[a], dtype=np.float64).reshape(-1, 3)[pix]
-        n_a = flat_n[a][pix]
+        n_a = views[a][1][pix]
         for b in nbrs[a]:
-            cam = cameras[b]
-            w, h = cam.width, cam.height
-            xy, z = cam.project(p)
-            ok = (z > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] <= h - 1)
-            ok &= np.einsum("ij,ij->i", n_a, cam.center - p) > 0  # faces camera b
-            if not ok.any():
-                continue
-            sel = np.flatnonzero(ok)
-            idx, wts = clamped_corners(xy[sel, 0], xy[sel, 1], w, h)
-            inside = flat_m[b][idx].all(axis=1)
-            sel, idx, wts = sel[inside], idx[inside], wts[inside]
-            zb = np.einsum("ij,ij->i", depth[b][idx], wts)
-            vis = np.abs(z[sel] - zb) <= depth_tol * z[sel]
-            nb = np.einsum("ijk,ij->ik", flat_n[b][idx], wts)
-            nb /= np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-30)
-            vis &= np.einsum("ij,ij->i", nb, n_a[sel]) >= min_normal_cos
-            sel = sel[vis]
-            out["view_a"].append(np.full(sel.size, a, dtype=np.int32))
-            out["pixel_a"].append(pix[sel].astype(np.int64))
-            out["view_b"].append(np.full(sel.size, b, dtype=np.int32))
-            out["xy_b"].append(xy[sel])
-    if not out["view_a"]:
-        return empty
-    va, pa, vb, xyb = (np.concatenate(out[k]) for k in ("view_a", "pixel_a", "view_b", "xy_b"))
+            sel, xy = _visible_in(cameras[b], views[b], p, n_a, depth_tol, min_normal_cos)
+            if sel is not None:
+                out.append((np.full(sel.size, a, dtype=np.int32), pix[sel].astype(np.int64),
+                            np.full(sel.size, b, dtype=np.int32), xy))
+    return _trimmed(out, max_pairs, rng) if out else empty
+
+
+def _trimmed(parts, max_pairs, rng) -> Correspondences:
+    """The ``(view_a, pixel_a, view_b, xy_b)`` parts joined, cut to ``max_pairs`` at random, and sorted."""
+    va, pa, vb, xyb = (np.concatenate(p) for p in zip(*parts))
     if va.size > max_pairs:
         keep = np.sort(rng.choice(va.size, size=max_pairs, replace=False))
         va, pa, vb, xyb = va[keep], pa[keep], vb[keep], xyb[keep]
     order = np.lexsort((vb, pa, va))
     return Correspondences(view_a=va[order], pixel_a=pa[order], view_b=vb[order], xy_b=xyb[order])
+
+
+def _flat_views(cameras, positions, masks, normals):
+    """Per view: its depth map (camera-space z of its hits, NaN off the mask), normals and mask, flattened."""
+    out = []
+    for cam, pos, mk, nrm in zip(cameras, positions, masks, normals):
+        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
+        z = np.full(mk.size, np.nan)
+        sel = mk.ravel()
+        z[sel] = pos[sel] @ cam.R[2] + cam.t[2]
+        out.append((z, np.asarray(nrm, dtype=np.float64).reshape(-1, 3), sel))
+    return out
+
+
+def _visible_in(cam, view, p, n_a, depth_tol, min_normal_cos):
+    """Which points ``p`` (normals ``n_a``) view b sees, and where: ``(sel, xy)``, or ``(None, None)``.
+
+    ``view`` is b's ``(depth, normals, mask)`` from :func:`_flat_views`; see
+    the module docstring for the tests.
+    """
+    depth, flat_n, flat_m = view
+    w, h = cam.width, cam.height
+    xy, z = cam.project(p)
+    ok = (z > 0) & (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] <= h - 1)
+    ok &= np.einsum("ij,ij->i", n_a, cam.center - p) > 0  # faces camera b
+    if not ok.any():
+        return None, None
+    sel = np.flatnonzero(ok)
+    idx, wts = clamped_corners(xy[sel, 0], xy[sel, 1], w, h)
+    inside = flat_m[idx].all(axis=1)
+    sel, idx, wts = sel[inside], idx[inside], wts[inside]
+    zb = np.einsum("ij,ij->i", depth[idx], wts)
+    vis = np.abs(z[sel] - zb) <= depth_tol * z[sel]
+    nb = np.einsum("ijk,ij->ik", flat_n[idx], wts)
+    nb /= np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-30)
+    vis &= np.einsum("ij,ij->i", nb, n_a[sel]) >= min_normal_cos
+    sel = sel[vis]
+    return sel, xy[sel]

@@ -123,18 +123,34 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     """
     tri_pos = np.asarray(tri_pos, dtype=np.float64).reshape(-1, 3, 3)
     h, w = camera.height, camera.width
-    K = camera.K
-    fx, skew, cx = K[0]
-    fy, cy = K[1, 1], K[1, 2]
     depth = np.full(h * w, np.inf)
     best = np.full(h * w, -1, dtype=np.intp)
     bary = np.zeros((h * w, 3))
-    if len(tri_pos) == 0:
-        return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+    if len(tri_pos):
+        vc = tri_pos @ camera.R.T + camera.t  # (T, 3, 3) camera space
+        scale = float(np.abs(vc).max()) or 1.0
+        z_near = 1e-9 * scale
+        spans = _row_spans(camera, vc, z_near)
+        if spans[0].size:
+            _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary)
+    bary[best < 0] = 0.0
+    return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
 
-    vc = tri_pos @ camera.R.T + camera.t  # (T, 3, 3) camera space
-    scale = float(np.abs(vc).max()) or 1.0
-    z_near = 1e-9 * scale
+
+# Pixels of slack on the projected bounds; the exact test decides.
+_MARGIN = 1e-3
+
+
+def _intrinsics(camera):
+    """``fx, skew, cx, fy, cy``: pixel ``x = fx X/Z + skew Y/Z + cx``, ``y = fy Y/Z + cy``."""
+    K = camera.K
+    return K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+
+
+def _pixel_boxes(camera, vc, z_near):
+    """Each triangle's box of candidate pixel centres: first column c0, last c1, first row r0, row count nr."""
+    h, w = camera.height, camera.width
+    fx, skew, cx, fy, cy = _intrinsics(camera)
     xmin, xmax, ymin, ymax, keep = _bounds(vc, z_near)
     # Normalised bounds to pixel bounds: y = fy * Y/Z + cy, x = fx * X/Z + skew * Y/Z + cx.
     # (With skew the x range needs both Y/Z extremes.)
@@ -143,20 +159,24 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     c_hi = fx * xmax + sk.max(axis=0) + cx
     r_lo = fy * ymin + cy
     r_hi = fy * ymax + cy
-    margin = 1e-3  # pixels; the exact test below decides
     with np.errstate(invalid="ignore"):
-        c0 = np.clip(np.ceil(c_lo - margin), 0, w).astype(np.int64)
-        c1 = np.clip(np.floor(c_hi + margin), -1, w - 1).astype(np.int64)
-        r0 = np.clip(np.ceil(r_lo - margin), 0, h).astype(np.int64)
-        r1 = np.clip(np.floor(r_hi + margin), -1, h - 1).astype(np.int64)
+        c0 = np.clip(np.ceil(c_lo - _MARGIN), 0, w).astype(np.int64)
+        c1 = np.clip(np.floor(c_hi + _MARGIN), -1, w - 1).astype(np.int64)
+        r0 = np.clip(np.ceil(r_lo - _MARGIN), 0, h).astype(np.int64)
+        r1 = np.clip(np.floor(r_hi + _MARGIN), -1, h - 1).astype(np.int64)
     nr = np.where(keep & (c1 >= c0), np.maximum(r1 - r0 + 1, 0), 0)
-    tris = np.flatnonzero(nr > 0)
-    if tris.size == 0:
-        return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+    return c0, c1, r0, nr
 
-    # One (triangle, row) pair per row of each bounding box; its column span is
-    # the exact span of the projected triangle on that row (the bounding box
-    # for triangles that cross the camera plane), so few candidates miss.
+
+def _row_spans(camera, vc, z_near):
+    """Candidate pixels as runs on rows: triangle, row, first column and length of each run.
+
+    One run per row of each triangle's box; its columns are the exact span of
+    the projected triangle on that row (the box's for triangles that cross the
+    camera plane), so few candidates miss.
+    """
+    c0, c1, r0, nr = _pixel_boxes(camera, vc, z_near)
+    tris = np.flatnonzero(nr > 0)
     pt = np.repeat(tris, nr[tris])
     prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris],
                                                                             nr[tris]))
@@ -164,46 +184,54 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     front = np.all(vc[pt, :, 2] >= z_near, axis=1)
     if front.any():
         f = np.flatnonzero(front)
-        v = vc[pt[f]]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            py = fy * v[:, :, 1] / v[:, :, 2] + cy
-            px = fx * v[:, :, 0] / v[:, :, 2] + skew * v[:, :, 1] / v[:, :, 2] + cx
-            y = prow[f].astype(np.float64)
-            xs = []
-            for i, j in ((0, 1), (1, 2), (2, 0)):
-                y_lo, y_hi = np.minimum(py[:, i], py[:, j]), np.maximum(py[:, i], py[:, j])
-                on = (y >= y_lo - margin) & (y <= y_hi + margin)
-                dy_e = py[:, j] - py[:, i]
-                s_e = np.clip(np.where(dy_e != 0, (y - py[:, i]) / dy_e, 0.0), 0.0, 1.0)
-                x_e = px[:, i] + s_e * (px[:, j] - px[:, i])
-                xs.append(np.where(on, x_e, np.nan))
-                # A horizontal edge on the row contributes both ends.
-                flat = on & (dy_e == 0)
-                xs.append(np.where(flat, px[:, j], np.nan))
-            xs = np.stack(xs, axis=1)
-            x_lo, x_hi = np.nanmin(xs, axis=1), np.nanmax(xs, axis=1)
+        x_lo, x_hi = _row_extent(camera, vc[pt[f]], prow[f].astype(np.float64))
         empty = ~np.isfinite(x_lo)
-        lo[f] = np.where(empty, 1.0, np.maximum(lo[f], np.ceil(x_lo - margin)))
-        hi[f] = np.where(empty, 0.0, np.minimum(hi[f], np.floor(x_hi + margin)))
+        lo[f] = np.where(empty, 1.0, np.maximum(lo[f], np.ceil(x_lo - _MARGIN)))
+        hi[f] = np.where(empty, 0.0, np.minimum(hi[f], np.floor(x_hi + _MARGIN)))
     plen = np.maximum(hi - lo + 1, 0).astype(np.int64)
-    keep_pairs = plen > 0
-    pt, prow, plo, plen = pt[keep_pairs], prow[keep_pairs], lo[keep_pairs].astype(np.int64), plen[keep_pairs]
-    if pt.size == 0:
-        return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+    keep = plen > 0
+    return pt[keep], prow[keep], lo[keep].astype(np.int64), plen[keep]
 
+
+def _row_extent(camera, v, y):
+    """Leftmost and rightmost x where row ``y`` meets each projected triangle ``v`` (in front of the camera).
+
+    NaN where the row misses the triangle.
+    """
+    fx, skew, cx, fy, cy = _intrinsics(camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        py = fy * v[:, :, 1] / v[:, :, 2] + cy
+        px = fx * v[:, :, 0] / v[:, :, 2] + skew * v[:, :, 1] / v[:, :, 2] + cx
+        xs = []
+        for i, j in ((0, 1), (1, 2), (2, 0)):
+            y_lo, y_hi = np.minimum(py[:, i], py[:, j]), np.maximum(py[:, i], py[:, j])
+            on = (y >= y_lo - _MARGIN) & (y <= y_hi + _MARGIN)
+            dy_e = py[:, j] - py[:, i]
+            s_e = np.clip(np.where(dy_e != 0, (y - py[:, i]) / dy_e, 0.0), 0.0, 1.0)
+            x_e = px[:, i] + s_e * (px[:, j] - px[:, i])
+            xs.append(np.where(on, x_e, np.nan))
+            # A horizontal edge on the row contributes both ends.
+            flat = on & (dy_e == 0)
+            xs.append(np.where(flat, px[:, j], np.nan))
+        xs = np.stack(xs, axis=1)
+        return np.nanmin(xs, axis=1), np.nanmax(xs, axis=1)
+
+
+def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
+    """Test the candidates of ``spans`` exactly, about ``batch`` at a time, keeping the nearest hit per pixel.
+
+    ``depth``, ``best`` and ``bary`` are the flat per-pixel outputs, updated in place.
+    """
+    pt, prow, plo, plen = spans
     # Per triangle: the edge-plane normals Vj x Vk (one per corner) and the volume.
     v0, v1, v2 = vc[:, 0], vc[:, 1], vc[:, 2]
     n_corner = np.stack([np.cross(v1, v2), np.cross(v2, v0), np.cross(v0, v1)], axis=1)  # (T, 3, 3)
     vol = np.einsum("ij,ij->i", v0, n_corner[:, 0])
-    # Normalised ray directions d = (dx, dy, 1) through the pixel centres.
-    dy_of_row = (np.arange(h) - cy) / fy
-
     cum = np.cumsum(plen)
     start = 0
     while start < pt.size:
         base = cum[start - 1] if start else 0
-        stop = int(np.searchsorted(cum, base + batch, side="right"))
-        stop = max(stop, start + 1)
+        stop = max(int(np.searchsorted(cum, base + batch, side="right")), start + 1)
         sl = slice(start, stop)
         start = stop
         cnt = plen[sl]
@@ -211,33 +239,44 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
         tid = np.repeat(pt[sl], cnt)
         r = np.repeat(prow[sl], cnt)
         c = np.repeat(plo[sl], cnt) + (np.arange(n) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-        dy = dy_of_row[r]
-        dx = (c - cx - skew * dy) / fx
-        # 1-D per-component arrays: np.repeat over sorted runs is far faster
-        # than fancy-indexing an (n, 3, 3) array.
-        wts = np.empty((n, 3))
-        for k in range(3):
-            nk = n_corner[pt[sl], k]
-            wts[:, k] = np.repeat(nk[:, 0], cnt) * dx
-            wts[:, k] += np.repeat(nk[:, 1], cnt) * dy
-            wts[:, k] += np.repeat(nk[:, 2], cnt)
-        s = wts.sum(axis=1)
-        sign = np.sign(s)
-        tol = _EDGE_EPS * np.abs(s)
-        hit = (s != 0)
-        for k in range(3):
-            hit &= wts[:, k] * sign >= -tol
+        wts, s, hit = _edge_test(camera, n_corner[pt[sl]], cnt, r, c)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.repeat(vol[pt[sl]], cnt) / s
         hit &= t > z_near
         if not hit.any():
             continue
-        pix = (r * w + c)[hit]
+        pix = (r * camera.width + c)[hit]
         t = t[hit]
         np.minimum.at(depth, pix, t)
         win = t <= depth[pix]
         pix = pix[win]
         best[pix] = tid[hit][win]
         bary[pix] = wts[hit][win] / s[hit][win, None]
-    bary[best < 0] = 0.0
-    return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+
+
+def _edge_test(camera, n_corner, cnt, r, c):
+    """Signed-volume test of the rays through pixels ``(r, c)`` against their triangles.
+
+    ``n_corner`` (k, 3, 3) holds each run's triangle's edge-plane normals and
+    ``cnt`` its length. Returns the unnormalised barycentric weights (n, 3),
+    their sum, and whether the ray passes inside the triangle.
+    """
+    fx, skew, cx, fy, cy = _intrinsics(camera)
+    # Normalised ray directions d = (dx, dy, 1) through the pixel centres.
+    dy = (r - cy) / fy
+    dx = (c - cx - skew * dy) / fx
+    # 1-D per-component arrays: np.repeat over sorted runs is far faster
+    # than fancy-indexing an (n, 3, 3) array.
+    wts = np.empty((r.size, 3))
+    for k in range(3):
+        nk = n_corner[:, k]
+        wts[:, k] = np.repeat(nk[:, 0], cnt) * dx
+        wts[:, k] += np.repeat(nk[:, 1], cnt) * dy
+        wts[:, k] += np.repeat(nk[:, 2], cnt)
+    s = wts.sum(axis=1)
+    sign = np.sign(s)
+    tol = _EDGE_EPS * np.abs(s)
+    hit = (s != 0)
+    for k in range(3):
+        hit &= wts[:, k] * sign >= -tol
+    return wts, s, hit

@@ -1,8 +1,7 @@
-"""Discretisations of the energy: data observations and difference operators.
+"""Discretisations of the energy: data observations and rows of differences.
 
 Both parameterisations of the reflectance share one form, so that the energy,
-the MM loop and the sigma-step are written once (:mod:`core.energy`,
-:mod:`core.solve.solver`):
+the MM loop and the sigma-step are written once (:mod:`core.solve.solver`):
 
 * a data term over *observations* ``o``: ``beta_o * phi(rho[u_o] * a_o - I_o)``
   where ``u_o`` is an unknown, ``a_o = sigma . nu`` the shading of the pixel
@@ -29,8 +28,8 @@ land on the same texel *are* the correspondences. Two data models:
   data term is diagonal in rho, so an iteration costs about half as much,
   but a texel then averages pixels up to a texel away, which biases albedo
   edges and gradients at the scale of a texel. On the rendered fixtures the
-  two give the same RMSE (README); on a synthetic textured sphere only
-  ``"interpolate"`` reaches the truth.
+  two give the same RMSE (docs/measurements.md); on a synthetic textured
+  sphere only ``"interpolate"`` reaches the truth.
 
 In both, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).
@@ -199,35 +198,45 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
     base = [np.ones(n_tv, dtype=np.float32)]
     corr = problem.correspondences
     if corr is not None and len(corr):
-        ua = np.empty(len(corr), dtype=np.intp)
-        ub = np.empty((len(corr), 4), dtype=np.intp)
-        wb = np.empty((len(corr), 4), dtype=np.float32)
-        keep = np.zeros(len(corr), dtype=bool)
-        for j in np.unique(corr.view_b):
-            sel = np.flatnonzero(corr.view_b == j)
-            flat, wts = masked_corners(corr.xy_b[sel, 0], corr.xy_b[sel, 1], problem.masks[j])
-            full = (flat >= 0).all(axis=1) & problem.masks[j].ravel()[flat].all(axis=1)
-            ub[sel] = lut[j][flat]
-            wb[sel] = wts
-            keep[sel] = full
-        for i in np.unique(corr.view_a):
-            sel = corr.view_a == i
-            ua[sel] = lut[i][corr.pixel_a[sel]]
-        keep &= (ua >= 0) & (corr.view_a != corr.view_b) & (corr.weight > 0)
-        ua, ub, wb = ua[keep], ub[keep], wb[keep]
-        w = corr.weight[keep].astype(np.float64)
-        if normalise_correspondences and ua.size:
-            main_b = ub[np.arange(ub.shape[0]), np.argmax(wb, axis=1)]
-            count = np.bincount(np.concatenate([ua, main_b]), minlength=n)
-            w = w * 2.0 / (count[ua] + count[main_b])
-        row_groups.append(_difference_rows(ua, ub, wb))
-        base.append(w.astype(np.float32))
+        rows, w = _correspondence_rows(problem, lut, n, normalise_correspondences)
+        row_groups.append(rows)
+        base.append(w)
     B, BT, B2T = _assemble(row_groups, n)
     obs = np.arange(n, dtype=np.intp)
     return Discretization(
         domain="image", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
         obs_unknown=obs, obs_pixel=obs, obs_weight=np.ones(n, dtype=np.float32),
         B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy())
+
+
+def _correspondence_rows(problem: Problem, lut: list, n: int, normalise: bool):
+    """The image domain's correspondence rows (see :func:`_difference_rows`) and their float32 base weights.
+
+    ``lut[i]`` maps view i's flat pixels to unknowns (-1 off the mask).
+    """
+    corr = problem.correspondences
+    ua = np.empty(len(corr), dtype=np.intp)
+    ub = np.empty((len(corr), 4), dtype=np.intp)
+    wb = np.empty((len(corr), 4), dtype=np.float32)
+    keep = np.zeros(len(corr), dtype=bool)
+    for j in np.unique(corr.view_b):
+        sel = np.flatnonzero(corr.view_b == j)
+        flat, wts = masked_corners(corr.xy_b[sel, 0], corr.xy_b[sel, 1], problem.masks[j])
+        full = (flat >= 0).all(axis=1) & problem.masks[j].ravel()[flat].all(axis=1)
+        ub[sel] = lut[j][flat]
+        wb[sel] = wts
+        keep[sel] = full
+    for i in np.unique(corr.view_a):
+        sel = corr.view_a == i
+        ua[sel] = lut[i][corr.pixel_a[sel]]
+    keep &= (ua >= 0) & (corr.view_a != corr.view_b) & (corr.weight > 0)
+    ua, ub, wb = ua[keep], ub[keep], wb[keep]
+    w = corr.weight[keep].astype(np.float64)
+    if normalise and ua.size:
+        main_b = ub[np.arange(ub.shape[0]), np.argmax(wb, axis=1)]
+        count = np.bincount(np.concatenate([ua, main_b]), minlength=n)
+        w = w * 2.0 / (count[ua] + count[main_b])
+    return _difference_rows(ua, ub, wb), w.astype(np.float32)
 
 
 def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: str = "splat") -> Discretization:
@@ -247,10 +256,38 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         raise ValueError("texture domain: the problem needs uv and a texture layout")
     if data_model not in ("interpolate", "splat"):
         raise ValueError(f"texture domain: data_model must be 'interpolate' or 'splat', got {data_model!r}")
-    layout = problem.texture
-    size = layout.size
-    inside = layout.inside
+    size = problem.texture.size
     offsets, values, nu, prods = _masked_pixels(problem)
+    tex_obs, pix_obs, w_obs = _splats(problem, offsets)
+    seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
+    texels = np.flatnonzero(seen_count > 0)
+    lut = np.full(size * size, -1, dtype=np.intp)
+    lut[texels] = np.arange(texels.size)
+    n = texels.size
+    w_obs *= n / w_obs.sum()
+    B, BT, B2T, base = _texel_rows(problem.texture, texels, lut, max_edge_ratio)
+    order = np.argsort(pix_obs, kind="stable")
+    obs_unknown, pix_obs, w_obs = lut[tex_obs][order], pix_obs[order], w_obs[order]
+    obs_matrix = None
+    if data_model == "interpolate":
+        obs_matrix, pix_obs, w_obs = _interpolation_rows(obs_unknown, pix_obs, w_obs, n)
+        obs_unknown = None
+    w_obs = w_obs.astype(np.float32)
+    d = Discretization(
+        domain="texture", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
+        obs_unknown=obs_unknown, obs_pixel=pix_obs, obs_weight=w_obs,
+        B=B, BT=BT, B2T=B2T, n_tv=B.shape[0], base=base, rho0=np.zeros((n, values.shape[1]), np.float32),
+        texel_index=texels, obs_matrix=obs_matrix)
+    # Start from the weighted mean of the observations that see each texel.
+    wsum = d.scatter(w_obs.astype(np.float64))
+    d.rho0 = np.stack([d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum
+                       for ch in range(values.shape[1])], axis=1).astype(np.float32)
+    return d
+
+
+def _splats(problem: Problem, offsets: np.ndarray):
+    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight."""
+    inside = problem.texture.inside
     tex_obs, pix_obs, w_obs = [], [], []
     for i in range(problem.n_views):
         mask = problem.masks[i]
@@ -263,19 +300,19 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         pix_obs.append(pix[keep])
         w_obs.append(wts.ravel()[keep])
     tex_obs = np.concatenate(tex_obs)
-    pix_obs = np.concatenate(pix_obs)
-    w_obs = np.concatenate(w_obs).astype(np.float64)
     if tex_obs.size == 0:
         raise ValueError("texture domain: no pixel lands inside the UV islands")
-    seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
-    texels = np.flatnonzero(seen_count > 0)
-    lut = np.full(size * size, -1, dtype=np.intp)
-    lut[texels] = np.arange(texels.size)
-    n = texels.size
-    w_obs *= n / w_obs.sum()
-    obs_unknown = lut[tex_obs]
+    return tex_obs, np.concatenate(pix_obs), np.concatenate(w_obs).astype(np.float64)
 
-    # TV edges between seen texels, weighted by the perpendicular texel side on the surface.
+
+def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: float):
+    """The texture domain's TV rows: B, its transposes and the base weights.
+
+    Edges join seen texels that are grid neighbours, weighted by the
+    perpendicular texel side on the surface, or that face each other across a
+    seam, with weight 1.
+    """
+    size = layout.size
     seen = np.zeros(size * size, dtype=bool)
     seen[texels] = True
     seen = seen.reshape(size, size)
@@ -293,30 +330,21 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     ea = np.concatenate([a, seam[:, 0]])
     eb = np.concatenate([b, seam[:, 1]])
     base = np.concatenate([perp / med, np.ones(seam.shape[0])]).astype(np.float32)
-    B, BT, B2T = _assemble([_difference_rows(lut[ea], lut[eb])], n)
+    return (*_assemble([_difference_rows(lut[ea], lut[eb])], texels.size), base)
 
-    order = np.argsort(pix_obs, kind="stable")
-    obs_unknown, pix_obs, w_obs = obs_unknown[order], pix_obs[order], w_obs[order]
-    obs_matrix = None
-    if data_model == "interpolate":
-        # One observation per pixel: its weight is the pixel's, its row the normalised bilinear weights.
-        pixels, start = np.unique(pix_obs, return_index=True)
-        w_pix = np.add.reduceat(w_obs, start)
-        rows = np.repeat(np.arange(pixels.size), np.diff(np.append(start, pix_obs.size)))
-        obs_matrix = sp.csr_matrix(((w_obs / w_pix[rows]).astype(np.float32), (rows, obs_unknown)),
-                                   shape=(pixels.size, n))
-        obs_unknown, pix_obs, w_obs = None, pixels, w_pix
-    w_obs = w_obs.astype(np.float32)
-    d = Discretization(
-        domain="texture", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
-        obs_unknown=obs_unknown, obs_pixel=pix_obs, obs_weight=w_obs,
-        B=B, BT=BT, B2T=B2T, n_tv=B.shape[0], base=base, rho0=np.zeros((n, values.shape[1]), np.float32),
-        texel_index=texels, obs_matrix=obs_matrix)
-    # Start from the weighted mean of the observations that see each texel.
-    wsum = d.scatter(w_obs.astype(np.float64))
-    d.rho0 = np.stack([d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum
-                       for ch in range(values.shape[1])], axis=1).astype(np.float32)
-    return d
+
+def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
+    """The splats, sorted by pixel, merged into one observation per pixel: ``(A, pixels, weights)``.
+
+    A pixel's weight is the sum of its splats'; its row of A holds their
+    weights normalised to sum 1.
+    """
+    pixels, start = np.unique(pix_obs, return_index=True)
+    w_pix = np.add.reduceat(w_obs, start)
+    rows = np.repeat(np.arange(pixels.size), np.diff(np.append(start, pix_obs.size)))
+    obs_matrix = sp.csr_matrix(((w_obs / w_pix[rows]).astype(np.float32), (rows, obs_unknown)),
+                               shape=(pixels.size, n))
+    return obs_matrix, pixels, w_pix
 
 
 def _texel_side_lengths(texel_pos: np.ndarray):

@@ -11,11 +11,9 @@ shading down and a small lambda is much truer.
 :func:`lighting_variation` measures it on the photos alone, before solving:
 per view, the part of its log brightness (relative to the other views) that
 the normal's SH basis explains, without the constant (an exposure change).
-Measured at 128 cells (README, "Accuracy"): 0.013 for `lambert_sky`, 0.13 for
-the sun and highlights of `photo_sun` and for its approximate mesh, 0.45 for
-`varying_light`; synthetic spheres 0.003 with fixed light (also with a
-different exposure per view) and 0.31 with a light per view.
-:func:`choose_lambda` maps it to the lambda measured best on either side.
+:func:`choose_lambda` maps it to the lambda measured best on either side of a
+threshold that separates the fixed-light scenes from those with a light per
+shot (the values are in docs/measurements.md).
 """
 from __future__ import annotations
 
@@ -27,7 +25,7 @@ from ..geometry.texels import texel_index
 __all__ = ["lighting_variation", "choose_lambda", "auto_lambda", "describe_lambda", "VARYING_THRESHOLD",
            "LAMBDA_FIXED", "LAMBDA_VARYING"]
 
-VARYING_THRESHOLD = 0.2   # between 0.13 (fixed sun, highlights) and 0.31-0.45 (a light per shot)
+VARYING_THRESHOLD = 0.2   # above every fixed-light scene measured, below every moving-light one
 LAMBDA_FIXED = 5.0
 LAMBDA_VARYING = 0.5
 _MIN_SHARED = 100         # cells seen by two views or more, below which we cannot tell
@@ -63,17 +61,8 @@ def lighting_variation(images, masks, normals, uvs, size: int = 128) -> float | 
         moves between shots; None when fewer than 100 cells are seen by two
         views.
     """
-    cells, views, logs, norms = [], [], [], []
-    for v, (img, mask, nrm, uv) in enumerate(zip(images, masks, normals, uvs)):
-        lum = np.asarray(img, np.float64)[mask].mean(axis=-1)
-        t = texel_index(np.asarray(uv)[mask], size)
-        ok = (t >= 0) & (lum > 0) & np.isfinite(lum)
-        cells.append(t[ok])
-        views.append(np.full(int(ok.sum()), v))
-        logs.append(np.log(lum[ok]))
-        norms.append(np.asarray(nrm, np.float64)[mask][ok])
     m = len(images)
-    cell, view, log, normal = (np.concatenate(a) for a in (cells, views, logs, norms))
+    cell, view, log, normal = _pixel_logs(images, masks, normals, uvs, size)
     # Mean log brightness of each (cell, view), and each cell's mean normal.
     key, inverse = np.unique(cell * m + view, return_inverse=True)
     n_obs = np.bincount(inverse)
@@ -86,20 +75,45 @@ def lighting_variation(images, masks, normals, uvs, size: int = 128) -> float | 
     cell_ids, c = np.unique(c, return_inverse=True)
     if cell_ids.size < _MIN_SHARED:
         return None
-    # Two-way fit mean ~ cell + view, so that an exposure change per view does not leak into the
-    # normal-dependent part through which views see which cells.
     w_obs = n_obs.astype(np.float64)
+    dev = _two_way_residual(mean, c, v, w_obs, m)
+    cell_normal = np.stack([np.bincount(cell, weights=normal[:, k], minlength=size * size)[cell_ids]
+                            for k in range(3)], axis=1)
+    cell_normal /= np.maximum(np.linalg.norm(cell_normal, axis=1, keepdims=True), 1e-12)
+    return _explained_rms(sh_basis(cell_normal[c], np.float64), dev, v, w_obs, m)
+
+
+def _pixel_logs(images, masks, normals, uvs, size):
+    """Cell, view, log luminance and normal of every masked pixel with a cell and a positive luminance."""
+    cells, views, logs, norms = [], [], [], []
+    for v, (img, mask, nrm, uv) in enumerate(zip(images, masks, normals, uvs)):
+        lum = np.asarray(img, np.float64)[mask].mean(axis=-1)
+        t = texel_index(np.asarray(uv)[mask], size)
+        ok = (t >= 0) & (lum > 0) & np.isfinite(lum)
+        cells.append(t[ok])
+        views.append(np.full(int(ok.sum()), v))
+        logs.append(np.log(lum[ok]))
+        norms.append(np.asarray(nrm, np.float64)[mask][ok])
+    return tuple(np.concatenate(a) for a in (cells, views, logs, norms))
+
+
+def _two_way_residual(mean, c, v, w_obs, m):
+    """``mean`` minus a weighted two-way fit ``cell + view``.
+
+    The view term takes each view's exposure, so that it does not leak into
+    the normal-dependent part through which views see which cells.
+    """
     wc = np.bincount(c, weights=w_obs)
     wv = np.bincount(v, weights=w_obs, minlength=m)
     offset = np.zeros(m)
     for _ in range(20):
         cell_mean = np.bincount(c, weights=w_obs * (mean - offset[v])) / wc
         offset = np.bincount(v, weights=w_obs * (mean - cell_mean[c]), minlength=m) / np.maximum(wv, 1e-12)
-    dev = mean - cell_mean[c] - offset[v]
-    cell_normal = np.stack([np.bincount(cell, weights=normal[:, k], minlength=size * size)[cell_ids]
-                            for k in range(3)], axis=1)
-    cell_normal /= np.maximum(np.linalg.norm(cell_normal, axis=1, keepdims=True), 1e-12)
-    nu = sh_basis(cell_normal[c], np.float64)
+    return mean - cell_mean[c] - offset[v]
+
+
+def _explained_rms(nu, dev, v, w_obs, m):
+    """Weighted RMS of each view's SH fit to ``dev``, its constant removed; None when no view has 10 cells."""
     explained, total = 0.0, 0.0
     for k in range(m):
         sel = v == k

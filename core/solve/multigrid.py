@@ -3,9 +3,8 @@
 The rho-step solves ``(diag(D) + B^T diag(w) B) x = b``. Where rho is flat,
 the majorant makes the TV and correspondence weights ``w`` (up to
 ``mu / delta``) thousands of times the data weights ``D``, so Jacobi-CG only
-moves information a few pixels per iteration: on the benchmark sphere at
-half the paper's size, 30 iterations leave 0.83 of the rho-step's error
-(README, "What we measured about the solver", item 8).
+moves information a few pixels per iteration (docs/measurements.md has the
+error left after k iterations of each preconditioner).
 
 Here the unknowns are grouped into 2x2 blocks of a grid, level after level,
 and every level's matrix is the Galerkin product ``P^T A P`` of the one
@@ -14,11 +13,9 @@ and built once). In the image domain the grid is the texture's when the
 pixels have UVs: a block then holds the pixels of *all* views that see one
 surface patch, which is what the stiff correspondence rows tie together.
 Blocks of each view's own pixel grid leave that coupling to the smoother
-and help far less (measured on the benchmark sphere at scale 0.5: 40
-iterations reduce the rho-step's error to 0.14 with view blocks, 0.010 with
-surface blocks; 300 Jacobi iterations to 0.04). A symmetric V-cycle with
-l1-Jacobi smoothing (always convergent) and a direct solve on the coarsest
-level preconditions CG.
+and help far less, so they are only the fallback for pixels without UVs.
+A symmetric V-cycle with l1-Jacobi smoothing (always convergent) and a
+direct solve on the coarsest level preconditions CG.
 """
 from __future__ import annotations
 
@@ -104,8 +101,8 @@ def _l1_inverse(A, dtype):
 def _sort_keys(keys):
     """``order`` sorting the int64 ``keys`` >= 0, and ``first``: True where a new key starts in ``keys[order]``.
 
-    Packs each key with its index into one int64 when they fit, since sorting
-    values is 2.4x faster than argsort (measured on 25M keys).
+    Packs each key with its index into one int64 when they fit: sorting
+    plain values is faster than an argsort.
     """
     bits = max(int(keys.size).bit_length(), 1)
     if keys.size and int(keys.max()) < 2 ** (63 - bits):
@@ -174,8 +171,7 @@ class Hierarchy:
     ``U @ w`` for the (block-crossing) difference rows, each deeper level's a
     sum of the level above's entries. Rebuilding the levels at each rho-step
     is then a few sparse products and sums instead of sparse triple
-    products: 0.12 s instead of 2.4 s per step and channel at the paper's
-    size (README, "What we measured about the solver", item 9).
+    products, which cost far more than the rest of the step.
 
     Parameters
     ----------

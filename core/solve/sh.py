@@ -34,7 +34,7 @@ def sh_products(nu: np.ndarray) -> np.ndarray:
     Precomputed once so that the sigma-step's 9x9 normal matrix is one
     matrix-vector product per view: ``M = unpack(w @ products)``.
     """
-    # Column by column from contiguous rows of nu^T: 10x faster than fancy indexing along axis 1.
+    # Column by column from contiguous rows of nu^T: fancy indexing along axis 1 is far slower.
     cols = np.ascontiguousarray(np.asarray(nu).T)
     out = np.empty((cols.shape[1], 45), dtype=cols.dtype)
     for k, (a, b) in enumerate(zip(*_IU)):

@@ -30,7 +30,7 @@ units of the images: the reflectance that the photos would show under a
 shading of average brightness.
 
 Defaults were chosen by albedo RMSE against the ground truth of the rendered
-fixtures (README, "What we measured about the solver"), not by energy:
+fixtures (docs/measurements.md, "What we measured about the solver"), not by energy:
 delta = 1e-3 (1e-4 leaves rho = I nearly a fixed point), mu = 10 with
 per-pixel normalised correspondences (mu = 1000 turns them into hard
 constraints that flatten the albedo), 4 levels, the splat data model and no
@@ -53,6 +53,7 @@ from .cg import pcg
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
 from .discretization import Discretization, image_domain, texture_domain
+from .problem import Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, unpack_products
 from .spmv import matvec_into
@@ -85,7 +86,7 @@ class SolverParams:
         Of the rho-step's CG (:mod:`core.solve.multigrid`). "auto" is multigrid in
         the image domain, where the correspondences make the step stiff, and
         Jacobi in the texture domain, where a better solved step did not cut
-        the outer iterations (README, "What we measured about the solver").
+        the outer iterations (docs/measurements.md).
     gauss_newton : bool
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
@@ -101,10 +102,7 @@ class SolverParams:
         bilinearly from it, sigma as it is).
     threads : int
         Channels solved at once, in threads (the sparse products release the
-        GIL). 3 keeps two cores busy with three channels: on the 2-core
-        machine at the paper's size an image-domain iteration took 13.0 s
-        with 3 threads, 16.1 s with 2 and 25.4 s with 1 (README, "What we
-        measured about the solver", item 9).
+        GIL); one thread per channel keeps every core busy.
     extrapolate : float
         After each iteration, try ``rho + extrapolate * (rho - rho_before)``
         and keep it if it lowers the energy (0 never tries): MM creeps along
@@ -356,6 +354,9 @@ class _Channel:
 def solve(problem, params: SolverParams | None = None, progress=None, cancel=None) -> Result:
     """Estimate reflectance and lighting with alternating MM.
 
+    The levels of :func:`_ladder` are solved coarse to fine, each started
+    from the one below.
+
     Parameters
     ----------
     problem : core.solve.problem.Problem
@@ -367,91 +368,116 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     Returns
     -------
     Result
+        The finest level's; ``info["coarse"]`` holds the level below it, and so on down.
     """
     params = params or SolverParams()
     params.check()
     params = params.resolved()
     t0 = time.perf_counter()
 
-    def report(frac, msg):
-        if progress is not None:
-            progress(float(frac), msg)
-
     def check_cancel():
         if cancel is not None and cancel():
             raise Cancelled("cancelled by the user")
 
-    if params.domain == "texture" and params.max_texels_per_pixel > 0 and problem.texture is not None:
-        size = supported_size(problem, params.max_texels_per_pixel)
-        if size < problem.texture.size:
-            r = solve(with_texture_size(problem, size), replace(params, max_texels_per_pixel=0.0), progress, cancel)
-            r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
-            r.info["solved_size"] = size
-            return r
+    levels = _ladder(problem, params)
+    result = None
+    for i, level in enumerate(levels):
+        result = _solve_level(level, result, _level_report(progress, levels, i), check_cancel, t0)
+    return result
 
-    coarse = None
-    base = 0.0  # of the progress bar, used by the coarse levels
-    if params.levels > 1:
-        smaller = coarsen(problem, texture=params.domain == "texture")
-        if smaller is not None:
-            base = 0.3
-            sub = replace(params, levels=params.levels - 1, max_iter=params.coarse_iter,
-                          min_iter=min(params.min_iter, params.coarse_iter))
-            label = (f"coarse level {smaller.texture.size}" if params.domain == "texture" else
-                     f"coarse level {smaller.masks[0].shape[1]}x{smaller.masks[0].shape[0]}")
-            coarse = solve(smaller, sub, cancel=cancel,
-                           progress=None if progress is None else
-                           (lambda f, msg: progress(base * f, f"{label}: {msg}")))
+
+@dataclass
+class _Level:
+    """One rung of the coarse-to-fine ladder.
+
+    Attributes
+    ----------
+    problem : Problem
+        What is discretised and solved at this level.
+    params : SolverParams
+        With this level's iteration bounds.
+    layout : TextureLayout or None
+        The finer texture to sample the result up to, when the texel cap
+        (``max_texels_per_pixel``) solved the level on a smaller one.
+    label : str
+        How the progress messages name the level.
+    """
+
+    problem: Problem
+    params: SolverParams
+    layout: TextureLayout | None = None
+    label: str = ""
+
+
+def _ladder(problem, params: SolverParams) -> list[_Level]:
+    """The levels to solve, coarsest first: the problem, then up to ``levels - 1`` coarsenings of it.
+
+    In the texture domain each level's texture is first capped at
+    ``max_texels_per_pixel`` (see :func:`core.solve.pyramid.supported_size`);
+    the levels below a capped one are coarsened from the capped problem and
+    not capped again. The coarse levels stop after ``coarse_iter`` iterations.
+    """
+    texture = params.domain == "texture"
+    cap = params.max_texels_per_pixel if texture else 0.0
+    coarse_params = replace(params, max_iter=params.coarse_iter, min_iter=min(params.min_iter, params.coarse_iter))
+    ladder, label = [], ""
+    while True:
+        layout = None
+        if cap > 0 and problem.texture is not None:
+            size = supported_size(problem, cap)
+            if size < problem.texture.size:
+                layout, problem, cap = problem.texture, with_texture_size(problem, size), 0.0
+        ladder.append(_Level(problem, coarse_params if ladder else params, layout, label))
+        smaller = coarsen(problem, texture=texture) if len(ladder) < params.levels else None
+        if smaller is None:
+            return ladder[::-1]
+        problem = smaller
+        label = (f"coarse level {problem.texture.size}" if texture else
+                 f"coarse level {problem.masks[0].shape[1]}x{problem.masks[0].shape[0]}")
+
+
+# Share of the progress bar that the levels below a level take.
+_COARSE_SHARE = 0.3
+
+
+def _level_report(progress, levels, i):
+    """``report(fraction, message)`` for level ``i``: its fraction of its own work, placed on the whole bar."""
+    if progress is None:
+        return lambda frac, msg: None
+    depth = len(levels) - 1 - i
+    prefix = "".join(f"{levels[j].label}: " for j in range(len(levels) - 2, i - 1, -1))
+
+    def report(frac, msg):
+        frac = float(frac)
+        for _ in range(depth):
+            frac = _COARSE_SHARE * frac
+        progress(frac, prefix + msg)
+    return report
+
+
+def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float) -> Result:
+    """Build one level's discretisation, start it from the level below, iterate, and rescale."""
+    problem, params = level.problem, level.params
+    base = 0.0 if below is None else _COARSE_SHARE  # of the progress bar, taken by the levels below
     report(base, f"building the {params.domain}-domain problem")
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
     else:
         d = texture_domain(problem, data_model=params.data_model)
     check_cancel()
+    # Timings count from the start of the whole solve, levels below included.
     t_build = time.perf_counter() - t0
-    rho0 = sigma0 = None
-    if coarse is not None:
-        # rho and sigma both after the coarse level's rescaling, so their product is the coarse one.
-        if d.domain == "texture":
-            up = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)[0]
-            up = up.reshape(-1, problem.channels)[d.texel_index]
-        else:
-            up = np.concatenate([upsample_pixels(v, m) for v, m in zip(coarse.views, problem.masks)])
-        rho0 = np.where(np.isfinite(up), up, d.rho0)
-        sigma0 = coarse.sigma
+    rho0, sigma0 = (None, None) if below is None else _warm_start(problem, d, below)
     hierarchy = None
     if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
         hierarchy = Hierarchy(block_grid(problem, d), d.B, d.BT)
     channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
                          None if sigma0 is None else sigma0[:, c], hierarchy) for c in range(problem.channels)]
-    pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
-    history, elapsed = [], []
-    it = 0
-    try:
-        history.append(sum(ch.e for ch in channels))
-        elapsed.append(time.perf_counter() - t0)
-        while it < params.max_iter:
-            check_cancel()
-            history.append(sum(pool.map(lambda ch: ch.step(), channels)))
-            elapsed.append(time.perf_counter() - t0)
-            it += 1
-            report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
-            prev, cur = history[-2], history[-1]
-            n_main = len(history) - 1
-            if n_main >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
-                break
-    finally:
-        pool.shutdown(wait=True)
+    history, elapsed = _iterate(channels, params, lambda it, e: report(
+        base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {e:.6g}"), check_cancel, t0)
     check_cancel()
-
-    rho = np.stack([ch.rho for ch in channels], axis=1)
-    sigma = np.stack([ch.sigma for ch in channels], axis=1)  # (m, C, 9)
-    # Output scale: mean shading over the observations is 1 in each channel.
-    for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
-        if np.isfinite(kappa) and kappa > 0:
-            rho[:, c] *= kappa
-            sigma[:, c] /= kappa
+    it = len(history) - 1
+    rho, sigma = _rescaled(d, channels)
     views, texture, seen = _outputs(problem, d, rho)
     report(1.0, f"done in {it} iterations")
     info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
@@ -459,11 +485,59 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
             "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
             "domain": d.domain, "elapsed": elapsed,
             "solved_size": problem.texture.size if d.domain == "texture" else None,
-            "coarse": None if coarse is None else {
-                "size": None if coarse.texture is None else int(coarse.texture.shape[0]),
-                "shapes": [v.shape[:2] for v in coarse.views], "iterations": coarse.iterations,
-                "energy": coarse.energy, "info": coarse.info}}
+            "coarse": None if below is None else {
+                "size": None if below.texture is None else int(below.texture.shape[0]),
+                "shapes": [v.shape[:2] for v in below.views], "iterations": below.iterations,
+                "energy": below.energy, "info": below.info}}
+    if level.layout is not None:
+        texture, seen = upsample_bilinear(texture, seen, level.layout)
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
+
+
+def _warm_start(problem, d: Discretization, below: Result):
+    """rho and sigma of the level below, rho sampled bilinearly onto this level's unknowns."""
+    # Both are taken after the lower level's rescaling, so their product is its own.
+    if d.domain == "texture":
+        up = upsample_bilinear(below.texture, below.seen, problem.texture)[0]
+        up = up.reshape(-1, problem.channels)[d.texel_index]
+    else:
+        up = np.concatenate([upsample_pixels(v, m) for v, m in zip(below.views, problem.masks)])
+    return np.where(np.isfinite(up), up, d.rho0), below.sigma
+
+
+def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
+    """The outer MM loop over all channels; returns the energy history and its times since ``t0``.
+
+    ``report(iteration, energy)`` is called after each iteration. The
+    stopping test on the relative energy change is skipped before
+    ``min_iter``, so that a warm start cannot stop the loop at once.
+    """
+    pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
+    history, elapsed = [sum(ch.e for ch in channels)], [time.perf_counter() - t0]
+    try:
+        for it in range(1, params.max_iter + 1):
+            check_cancel()
+            history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            elapsed.append(time.perf_counter() - t0)
+            report(it, history[-1])
+            prev, cur = history[-2], history[-1]
+            if it >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
+                break
+    finally:
+        pool.shutdown(wait=True)
+    return history, elapsed
+
+
+def _rescaled(d: Discretization, channels):
+    """rho (n, C) and sigma (m, C, 9), scaled so that the mean shading over the observations is 1 per channel."""
+    rho = np.stack([ch.rho for ch in channels], axis=1)
+    sigma = np.stack([ch.sigma for ch in channels], axis=1)
+    for c, ch in enumerate(channels):
+        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        if np.isfinite(kappa) and kappa > 0:
+            rho[:, c] *= kappa
+            sigma[:, c] /= kappa
+    return rho, sigma
 
 
 def _outputs(problem, d: Discretization, rho: np.ndarray):
@@ -499,8 +573,7 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
 def _gauss_newton_step(ch: "_Channel") -> bool:
     """One Gauss-Newton step on rho and sigma together, on the current majorant.
 
-    Plain alternation crawls along the valley where rho and sigma trade off
-    (on a noiseless, well-posed sphere it stops 4x further from the truth).
+    Plain alternation crawls along the valley where rho and sigma trade off.
     Here both move at once: the data residual ``(A rho) a(sigma) - I`` is
     linearised in both, the TV and correspondence terms enter exactly, and
     the joint normal equations are solved by CG with a Jacobi (rho) and 9x9
@@ -508,32 +581,44 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
     keeps the MM guarantee: a step is taken only if it lowers the energy.
     """
     d = ch.d
+    n = d.n_unknowns
+    rho = ch.rho.astype(np.float64)
+    matvec, precondition, rhs, free = _joint_system(ch, rho)
+    step = pcg(matvec, rhs, np.zeros(rhs.size), precondition, 2 * ch.cg_iter)
+    drho, dsig = step[:n], (step[n:] * free).reshape(d.n_views, 9)
+    for t in (1.0, 0.5, 0.25, 0.125):
+        sigma = ch.sigma + t * dsig
+        shade = _shading(d, sigma, ch.ft)
+        new = (rho + t * drho).astype(ch.ft)
+        e = ch.energy(rho=new, obs_shade=shade[d.obs_pixel])
+        if e < ch.e:
+            ch.rho, ch.e = new, e
+            ch._set_sigma(sigma, shade)
+            return True
+    return False
+
+
+def _joint_system(ch: "_Channel", rho: np.ndarray):
+    """The Gauss-Newton normal equations in ``(rho, sigma)`` at ``rho`` and the channel's sigma.
+
+    Returns
+    -------
+    matvec, precondition : callables on ``(n + 9m,)`` vectors
+    rhs : (n + 9m,) array
+    free : (9m,) array
+        1 for the sigma coefficients that may move, 0 for view 0's pinned constant term.
+    """
+    d = ch.d
     m, n = d.n_views, d.n_unknowns
-    nv = 9 * m
     A, AT, A2T = d.observation_matrices()
     a = ch.obs_shade.astype(np.float64)
     vals = ch.obs_values.astype(np.float64)
-    rho = ch.rho.astype(np.float64)
     rho_o = A @ rho
     r = rho_o * a - vals
     w = d.obs_weight * mm_weight(r, ch.delta)
     data = w * a * a
-    # d r_o / d sigma_v(o) = rho_o nu_o: an (O, 9m) matrix with 9 entries per row, coupled to rho through A^T.
-    nu_o = d.nu[d.obs_pixel].astype(np.float64)
-    O = nu_o.shape[0]
-    N = sp.csr_matrix((((w * a * rho_o)[:, None] * nu_o).ravel(),
-                       (9 * d.obs_view[:, None] + np.arange(9)).ravel(), np.arange(0, 9 * O + 1, 9)), shape=(O, nv))
-    C = (AT @ N).tocsr()
-    CT = C.T.tocsr()
-    npix = d.nu.shape[0]
-    p_w = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
-    p_r = np.bincount(d.obs_pixel, weights=w * r * rho_o, minlength=npix)
-    S = np.empty((m, 9, 9))
-    g_sigma = np.empty(nv)
-    for v in range(m):
-        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        S[v] = unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
-        g_sigma[9 * v:9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+    C, CT = _sigma_coupling(d, AT, w * a * rho_o)
+    S, g_sigma = _sigma_blocks(d, w, r, rho_o)
     g_rho = AT @ (w * r * a)
     jacobi = A2T @ data
     if d.B.shape[0]:
@@ -541,7 +626,7 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
         sw = ch.s * mm_weight(B @ rho, ch.delta)
         g_rho += BT @ (sw * (B @ rho))
         jacobi += d.B2T.astype(np.float64) @ sw
-    free = np.ones(nv)
+    free = np.ones(9 * m)
     free[3] = 0.0  # the pinned constant term of view 0
     S_inv = np.empty_like(S)
     for v in range(m):
@@ -560,15 +645,32 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
         return np.concatenate([np.where(jacobi > 0, x[:n] / np.maximum(jacobi, 1e-300), 0.0),
                                np.einsum("vij,vj->vi", S_inv, (x[n:] * free).reshape(m, 9)).ravel() * free])
 
-    step = pcg(matvec, -np.concatenate([g_rho, g_sigma * free]), np.zeros(n + nv), precondition, 2 * ch.cg_iter)
-    drho, dsig = step[:n], (step[n:] * free).reshape(m, 9)
-    for t in (1.0, 0.5, 0.25, 0.125):
-        sigma = ch.sigma + t * dsig
-        shade = _shading(d, sigma, ch.ft)
-        new = (rho + t * drho).astype(ch.ft)
-        e = ch.energy(rho=new, obs_shade=shade[d.obs_pixel])
-        if e < ch.e:
-            ch.rho, ch.e = new, e
-            ch._set_sigma(sigma, shade)
-            return True
-    return False
+    return matvec, precondition, -np.concatenate([g_rho, g_sigma * free]), free
+
+
+def _sigma_coupling(d: Discretization, AT, coef: np.ndarray):
+    """The (n, 9m) rho-sigma block of the joint normal equations and its transpose.
+
+    ``d r_o / d sigma_v(o) = rho_o nu_o``: an (O, 9m) matrix with 9 entries
+    per row, scaled by ``coef`` (``w a rho_o``) and coupled to rho through ``A^T``.
+    """
+    nu_o = d.nu[d.obs_pixel].astype(np.float64)
+    O = nu_o.shape[0]
+    N = sp.csr_matrix(((coef[:, None] * nu_o).ravel(), (9 * d.obs_view[:, None] + np.arange(9)).ravel(),
+                       np.arange(0, 9 * O + 1, 9)), shape=(O, 9 * d.n_views))
+    C = (AT @ N).tocsr()
+    return C, C.T.tocsr()
+
+
+def _sigma_blocks(d: Discretization, w, r, rho_o):
+    """The 9x9 sigma-sigma block of each view, (m, 9, 9), and the gradient in sigma, (9m,)."""
+    npix = d.nu.shape[0]
+    p_w = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
+    p_r = np.bincount(d.obs_pixel, weights=w * r * rho_o, minlength=npix)
+    S = np.empty((d.n_views, 9, 9))
+    g_sigma = np.empty(9 * d.n_views)
+    for v in range(d.n_views):
+        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        S[v] = unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        g_sigma[9 * v:9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+    return S, g_sigma

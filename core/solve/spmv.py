@@ -3,10 +3,9 @@
 scipy's ``A @ x`` returns a new array each call. An array larger than
 glibc's biggest reusable block (32 MB) comes fresh from the kernel every
 time, and faulting its pages in is a large share of a product over the
-difference rows: at the paper's size (11.4M rows, 45 MB in float32) the
-rho-step's ``B^T (w * (B x))`` ran 1.5x faster into a kept buffer, and two
-threads doing fresh products ran slower together than one thread alone
-(README, "What we measured about the solver", item 9).
+difference rows, and threads doing fresh products run slower together than
+one alone: the channels' threads only pay off with kept buffers
+(docs/measurements.md).
 """
 from __future__ import annotations
 

@@ -189,19 +189,8 @@ def fill_unseen(texture, seen, inside, margin=4):
     flat_in = tex.ndim == 2
     if flat_in:
         tex = tex[..., None]
-    if tex.ndim != 3 or tex.shape[0] != tex.shape[1]:
-        raise ValueError(f"fill_unseen: texture must be (N, N, C) or (N, N), got {np.shape(texture)}")
-    n = tex.shape[0]
-    seen = np.asarray(seen, dtype=bool)
-    inside = np.asarray(inside, dtype=bool)
-    for what, a in (("seen", seen), ("inside", inside)):
-        if a.shape != (n, n):
-            raise ValueError(f"fill_unseen: {what} must be ({n}, {n}) like the texture, got {a.shape}")
-    if isinstance(margin, bool) or not isinstance(margin, (int, np.integer)) or margin < 0:
-        raise ValueError(f"fill_unseen: margin must be an integer >= 0, got {margin!r}")
-    if not seen.any():
-        raise ValueError("fill_unseen: no texel is seen, nothing to fill from")
-    c = tex.shape[2]
+    seen, inside = _check_args(tex, np.shape(texture), seen, inside, margin)
+    n, c = tex.shape[0], tex.shape[2]
     idx = np.flatnonzero(seen)
     data = tex.reshape(n * n, c)[idx].astype(np.float64)
     bad = ~np.isfinite(data).all(axis=1)
@@ -222,3 +211,20 @@ def fill_unseen(texture, seen, inside, margin=4):
     vals = _dilate(vals, dom, margin)
     out = vals.astype(np.float32)
     return out[..., 0] if flat_in else out
+
+
+def _check_args(tex, shape, seen, inside, margin):
+    """:func:`fill_unseen`'s arguments checked (``tex`` is (N, N, C), ``shape`` as given); returns the masks as bool."""
+    if tex.ndim != 3 or tex.shape[0] != tex.shape[1]:
+        raise ValueError(f"fill_unseen: texture must be (N, N, C) or (N, N), got {shape}")
+    n = tex.shape[0]
+    seen = np.asarray(seen, dtype=bool)
+    inside = np.asarray(inside, dtype=bool)
+    for what, a in (("seen", seen), ("inside", inside)):
+        if a.shape != (n, n):
+            raise ValueError(f"fill_unseen: {what} must be ({n}, {n}) like the texture, got {a.shape}")
+    if isinstance(margin, bool) or not isinstance(margin, (int, np.integer)) or margin < 0:
+        raise ValueError(f"fill_unseen: margin must be an integer >= 0, got {margin!r}")
+    if not seen.any():
+        raise ValueError("fill_unseen: no texel is seen, nothing to fill from")
+    return seen, inside

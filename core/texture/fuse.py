@@ -239,22 +239,10 @@ def fuse_views(maps, masks, uv, size, view_weight=None, inside=None, margin=4):
         On inconsistent shapes or non-finite UV or weights inside a mask, or
         when no masked pixel lands in the texture.
     """
-    m = len(maps)
-    if m == 0:
-        raise ValueError("fuse_views: no views")
-    for what, seq in (("masks", masks), ("uv", uv), ("view_weight", view_weight)):
-        if seq is not None and len(seq) != m:
-            raise ValueError(f"fuse_views: {len(seq)} {what} for {m} maps")
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
-        raise ValueError(f"fuse_views: size must be a positive integer, got {size!r}")
-    n = int(size)
-    if inside is not None:
-        inside = np.asarray(inside, dtype=bool)
-        if inside.shape != (n, n):
-            raise ValueError(f"fuse_views: inside must be ({n}, {n}), got {inside.shape}")
+    n, inside = _check_args(maps, masks, uv, size, view_weight, inside)
     maps, c = _as_maps(maps)
     recs = [_view_records(i, maps[i], masks[i], uv[i], None if view_weight is None else view_weight[i],
-                          n, inside) for i in range(m)]
+                          n, inside) for i in range(len(maps))]
     if sum(r[0].size for r in recs) == 0:
         raise ValueError("fuse_views: no masked pixel lands in the texture (check the UVs and inside)")
     texels, count, start, vals, wts = _group_by_texel(recs, n * n)
@@ -270,3 +258,21 @@ def fuse_views(maps, masks, uv, size, view_weight=None, inside=None, margin=4):
     out[..., :c] = fill_unseen(colour.reshape(n, n, c), seen, inside, margin)
     out[..., c] = seen
     return out
+
+
+def _check_args(maps, masks, uv, size, view_weight, inside):
+    """:func:`fuse_views`'s counts, size and ``inside`` checked; returns the size as an int and ``inside`` as bool."""
+    m = len(maps)
+    if m == 0:
+        raise ValueError("fuse_views: no views")
+    for what, seq in (("masks", masks), ("uv", uv), ("view_weight", view_weight)):
+        if seq is not None and len(seq) != m:
+            raise ValueError(f"fuse_views: {len(seq)} {what} for {m} maps")
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+        raise ValueError(f"fuse_views: size must be a positive integer, got {size!r}")
+    n = int(size)
+    if inside is not None:
+        inside = np.asarray(inside, dtype=bool)
+        if inside.shape != (n, n):
+            raise ValueError(f"fuse_views: inside must be ({n}, {n}), got {inside.shape}")
+    return n, inside
