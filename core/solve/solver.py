@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import Cancelled
+from ..progress import check_cancel
 from .cg import pcg
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
@@ -363,7 +363,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params : SolverParams
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
-        Polled between steps; when it returns True, :class:`Cancelled` is raised.
+        Polled between steps; when it returns True, :class:`core.errors.Cancelled` is raised.
 
     Returns
     -------
@@ -375,14 +375,13 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params = params.resolved()
     t0 = time.perf_counter()
 
-    def check_cancel():
-        if cancel is not None and cancel():
-            raise Cancelled("cancelled by the user")
+    def poll():
+        check_cancel(cancel)
 
     levels = _ladder(problem, params)
     result = None
     for i, level in enumerate(levels):
-        result = _solve_level(level, result, _level_report(progress, levels, i), check_cancel, t0)
+        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0)
     return result
 
 
