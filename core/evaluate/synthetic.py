@@ -14,6 +14,7 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..solve.problem import Problem, TextureLayout
 from ..solve.sh import sh_basis
+from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels
 
 __all__ = ["SyntheticScene", "sphere_scene"]
@@ -126,7 +127,7 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
         if textured:
             flat, wts = bilinear_texels(uv[mask], np.ones((N, N), bool))
             alb = np.full(mask.shape + (channels,), np.nan)
-            alb[mask] = np.einsum("pk,pkc->pc", wts, texture_albedo.reshape(N * N, -1)[flat])
+            alb[mask] = interpolate(texture_albedo.reshape(N * N, -1), flat, wts)
         else:
             alb = _albedo(p, cells, colors, smooth_albedo)
         shade = np.einsum("hwk,ck->hwc", sh_basis(n, np.float64), sigma[v])

@@ -11,7 +11,7 @@ from .texels import (TextureLayout,
     bilinear_texels,
     texture_layout)
 from .correspondences import Correspondences, find_correspondences, neighbour_views
-from .bilinear import clamped_corners, masked_corners
+from .bilinear import clamped_corners, interpolate, masked_corners
 
 __all__ = [
     "Camera",
@@ -31,4 +31,5 @@ __all__ = [
     "neighbour_views",
     "clamped_corners",
     "masked_corners",
+    "interpolate",
 ]

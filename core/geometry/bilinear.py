@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["clamped_corners", "masked_corners"]
+__all__ = ["clamped_corners", "masked_corners", "interpolate"]
 
 
 def clamped_corners(x, y, w, h):
@@ -48,3 +48,9 @@ def masked_corners(x, y, valid):
     with np.errstate(invalid="ignore", divide="ignore"):
         wts = np.where(total > 0, wts / total, 0).astype(np.float32)
     return flat, wts
+
+
+def interpolate(values, corners, weights):
+    """The weighted sum of ``values`` (flat cells first, (N, ...) ) at ``corners`` (K, 4): (K, ...)."""
+    v = values[corners]
+    return np.einsum("kj,kj...->k...", weights, v)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bilinear import clamped_corners
+from .bilinear import clamped_corners, interpolate
 
 __all__ = ["Correspondences", "find_correspondences", "neighbour_views"]
 
@@ -202,9 +202,9 @@ def _visible_in(cam, view, p, n_a, depth_tol, min_normal_cos):
     idx, wts = clamped_corners(xy[sel, 0], xy[sel, 1], w, h)
     inside = flat_m[idx].all(axis=1)
     sel, idx, wts = sel[inside], idx[inside], wts[inside]
-    zb = np.einsum("ij,ij->i", depth[idx], wts)
+    zb = interpolate(depth, idx, wts)
     vis = np.abs(z[sel] - zb) <= depth_tol * z[sel]
-    nb = np.einsum("ijk,ij->ik", flat_n[idx], wts)
+    nb = interpolate(flat_n, idx, wts)
     nb /= np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-30)
     vis &= np.einsum("ij,ij->i", nb, n_a[sel]) >= min_normal_cos
     sel = sel[vis]

@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from ..geometry.bilinear import masked_corners
+from ..geometry.bilinear import interpolate, masked_corners
 from .problem import Correspondences, Problem, TextureLayout
 from ..geometry.texels import bilinear_texels, uv_of_texel
 
@@ -102,7 +102,7 @@ def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """
     r, c = np.nonzero(mask)
     flat, w = masked_corners(c / 2.0, r / 2.0, np.isfinite(coarse[..., 0]))
-    out = np.einsum("kj,kjc->kc", w, np.nan_to_num(coarse.reshape(-1, coarse.shape[-1]))[flat])
+    out = interpolate(np.nan_to_num(coarse.reshape(-1, coarse.shape[-1])), flat, w)
     out[w.sum(axis=1) == 0] = np.nan
     return out
 
@@ -149,8 +149,7 @@ def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayou
     parent = np.minimum(np.arange(size) * n // size, n - 1)
     r, c = np.nonzero(layout.inside & seen[parent][:, parent])
     idx, w = bilinear_texels(uv_of_texel(r, c, size), seen)
-    values = np.nan_to_num(coarse.reshape(-1, coarse.shape[-1]))[idx]
     fine = np.full((size, size, coarse.shape[-1]), np.nan, dtype=np.float32)
     ok = w.sum(axis=1) > 0
-    fine[r[ok], c[ok]] = np.einsum("kj,kjc->kc", w[ok], values[ok])
+    fine[r[ok], c[ok]] = interpolate(np.nan_to_num(coarse.reshape(-1, coarse.shape[-1])), idx[ok], w[ok])
     return fine, np.isfinite(fine[..., 0])

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.bilinear import clamped_corners
+from ..geometry.bilinear import clamped_corners, interpolate
 from ..geometry.texels import texel_of_uv
 
 __all__ = ["sample_texture"]
@@ -16,5 +16,5 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, mask: np.ndarray) -> np.
     out = np.full(uv.shape[:2] + (tex.shape[1],), np.nan, dtype=np.float32)
     y, x = texel_of_uv(uv[mask], n)
     idx, wts = clamped_corners(np.clip(x, 0, n - 1), np.clip(y, 0, n - 1), n, n)
-    out[mask] = np.einsum("kj,kjc->kc", wts, tex[idx])
+    out[mask] = interpolate(tex, idx, wts)
     return out
