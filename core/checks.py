@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DelightError
+from .geometry.texels import STRETCH_FACTOR, uv_stretched
 
-__all__ = ["NEGATIVE_MAX_SHARE", "STRETCH_FACTOR", "check_photos", "check_uv_layout"]
+__all__ = ["NEGATIVE_MAX_SHARE", "check_photos", "check_uv_layout"]
 
 #: Share of a photo's pixels on the mesh that may be negative before the photo is refused; below it the
 #: negative pixels are left out (a few come from denoisers and resampling).
@@ -55,9 +56,6 @@ def check_photos(names, photos, masks) -> list:
     return warnings
 
 
-#: Triangles whose UV area per surface area is this many times off the median count as stretched
-#: (for example an n-gon whose corners lie in two UV islands, so that its triangles span the gap).
-STRETCH_FACTOR = 10.0
 _BLOCK = 1 << 21
 
 
@@ -113,15 +111,11 @@ def check_uv_layout(tri_uv, tri_pos, size) -> list:
     if flat.any():
         warnings.append(f"UV layout: {int(flat.sum())} faces ({100 * area[flat].sum() / total:.1f} % of the "
                         "surface) have no area in the UV map, so their albedo cannot be stored: unwrap them")
-    ratio = uv_area / np.maximum(area, 1e-30)
-    usable = ~flat & (area > 0)
-    if usable.any():
-        median = float(np.median(ratio[usable]))
-        stretched = usable & ((ratio > STRETCH_FACTOR * median) | (ratio < median / STRETCH_FACTOR))
-        if stretched.any():
-            warnings.append(f"UV layout: {int(stretched.sum())} faces ({100 * area[stretched].sum() / total:.1f} % "
-                            "of the surface) are stretched more than 10x in the UV map (n-gons across a seam?): "
-                            "triangulate or re-unwrap them")
+    stretched = ~flat & uv_stretched(tri_uv, tri_pos)
+    if stretched.any():
+        warnings.append(f"UV layout: {int(stretched.sum())} faces ({100 * area[stretched].sum() / total:.1f} % "
+                        f"of the surface) are stretched more than {STRETCH_FACTOR:g}x in the UV map (n-gons across a "
+                        "seam?): re-unwrap them")
     # Overlaps are measured on at most a 512^2 grid: enough for a share, and cheap at any texture size.
     m = min(n, 512)
     cover = _centre_coverage(q[~flat] * (m / n) + 0.5 * (m / n - 1.0), m)

@@ -243,3 +243,27 @@ def test_sphere_2048_is_sane():
     assert np.all((cols[:, 0] < lo + 3) & (cols[:, 1] > hi - 3))
     texel_world = 2 * np.pi / (0.98 * n)
     assert seam_distances(layout).max() < 2 * texel_world
+
+
+def test_a_stretched_triangle_across_islands_does_not_move_their_texels():
+    # Two islands side by side in UV; an n-gon whose corners lie in both becomes a triangle spanning the gap
+    # (and part of the right island). It may fill texels no other face covers, never take theirs.
+    from core.geometry.texels import uv_stretched
+    n = 32
+    left_uv = np.array([[[0.05, 0.05], [0.45, 0.05], [0.45, 0.95]], [[0.05, 0.05], [0.45, 0.95], [0.05, 0.95]]])
+    right_uv = left_uv + [0.5, 0.0]
+    pos = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], float)
+    tri_uv = np.concatenate([left_uv, right_uv])
+    tri_pos = np.concatenate([pos, pos + [0, 0, 5.0]])
+    tri_vert = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    base = texture_layout(tri_uv, tri_pos, tri_vert, n)
+    span_uv = np.array([[[0.45, 0.5], [0.95, 0.3], [0.95, 0.7]]])      # reaches into the right island
+    span_pos = np.array([[[1, 0.5, 0], [1.01, 0.5, 0.0], [1.0, 0.51, 0]]])
+    layout = texture_layout(np.concatenate([tri_uv, span_uv]), np.concatenate([tri_pos, span_pos]),
+                            np.concatenate([tri_vert, [[1, 8, 9]]]), n)
+    assert uv_stretched(np.concatenate([tri_uv, span_uv]), np.concatenate([tri_pos, span_pos])).tolist() == \
+        [False] * 4 + [True]
+    both = base.inside
+    np.testing.assert_array_equal(layout.texel_pos[both], base.texel_pos[both])
+    assert (layout.inside & ~base.inside).any()          # the gap texels it alone covers
+    np.testing.assert_array_equal(layout.seam_pairs, base.seam_pairs)

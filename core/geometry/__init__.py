@@ -9,7 +9,9 @@ from .texels import (TextureLayout,
     uv_of_texel,
     texel_index,
     bilinear_texels,
-    texture_layout)
+    texture_layout,
+    uv_stretched,
+    STRETCH_FACTOR)
 from .correspondences import Correspondences, find_correspondences, neighbour_views
 from .bilinear import clamped_corners, interpolate, masked_corners
 
@@ -26,6 +28,8 @@ __all__ = [
     "texel_index",
     "bilinear_texels",
     "texture_layout",
+    "uv_stretched",
+    "STRETCH_FACTOR",
     "Correspondences",
     "find_correspondences",
     "neighbour_views",

@@ -21,7 +21,7 @@ import numpy as np
 from .bilinear import masked_corners
 
 
-__all__ = ["TextureLayout", "texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout"]
+__all__ = ["TextureLayout", "texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout", "uv_stretched", "STRETCH_FACTOR"]
 
 
 def _fail(msg):
@@ -73,6 +73,8 @@ class TextureLayout:
 
 # Candidate (texel, triangle) pairs processed per block, to bound memory.
 _BLOCK = 1 << 20
+#: Area ratio (UV per surface, against the median) beyond which a triangle counts as stretched.
+STRETCH_FACTOR = 10.0
 
 
 def _check_size(n):
@@ -242,7 +244,26 @@ def _closest_on_boundary(qt, x, y):
     return lam
 
 
-def _rasterise(q, tri_pos, n, margin):
+def uv_stretched(tri_uv, tri_pos, factor=STRETCH_FACTOR):
+    """(T,) bool: triangles whose UV area per surface area is ``factor`` times off the median.
+
+    An n-gon whose corners lie in two UV islands is split into such triangles: they span the gap
+    between the islands and cover texels that belong to other faces.
+    """
+    tri_uv = np.asarray(tri_uv, dtype=np.float64)
+    tri_pos = np.asarray(tri_pos, dtype=np.float64)
+    e1, e2 = tri_uv[:, 1] - tri_uv[:, 0], tri_uv[:, 2] - tri_uv[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = 0.5 * np.linalg.norm(np.cross(tri_pos[:, 1] - tri_pos[:, 0], tri_pos[:, 2] - tri_pos[:, 0]), axis=1)
+    usable = (uv_area > 0) & (area > 0)
+    if not usable.any():
+        return np.zeros(len(tri_uv), dtype=bool)
+    ratio = uv_area / np.where(area > 0, area, 1.0)
+    median = float(np.median(ratio[usable]))
+    return usable & ((ratio > factor * median) | (ratio < median / factor))
+
+
+def _rasterise(q, tri_pos, n, margin, low_priority=None):
     """World position per texel by conservative rasterisation (see :func:`texture_layout`)."""
     a, b, c, ok = _barycentric_planes(q)
     grad = np.hypot(a, b)
@@ -286,9 +307,13 @@ def _rasterise(q, tri_pos, n, margin):
         # Texels whose centre is covered win over those only overlapped.
         d = lam * inv_grad[t]
         score = np.minimum(np.minimum(d[:, 0], d[:, 1]), d[:, 2])
+        key = score
+        if low_priority is not None:
+            # Stretched triangles only take texels that no other triangle reaches.
+            key = score - np.where(low_priority[t], 2.0 * n, 0.0)
         flat = y * n + x
-        np.maximum.at(best, flat, score)
-        win = score >= best[flat]
+        np.maximum.at(best, flat, key)
+        win = key >= best[flat]
         t, lam, flat = t[win], lam[win], flat[win]
         # Outside the triangle, take the closest point of the triangle, so that
         # positions stay on the surface (extrapolating a sliver could land far).
@@ -406,10 +431,12 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
     tri_uv, tri_pos, tri_vert = _check_mesh(tri_uv, tri_pos, tri_vert)
     row, col = texel_of_uv(tri_uv, n)
     q = np.stack([col, row], axis=-1)              # (T, 3, 2) as (x, y)
-    pos = _rasterise(q, tri_pos, n, margin)
+    stretched = uv_stretched(tri_uv, tri_pos)
+    pos = _rasterise(q, tri_pos, n, margin, low_priority=stretched)
     inside = np.all(np.isfinite(pos), axis=2)
     if not inside.any():
         raise ValueError(f"texture_layout: no triangle covers any texel of the {n}x{n} texture "
                          "(are the UVs inside [0, 1]?)")
-    pairs = _seam_pairs(q, tri_vert, inside, n)
+    # A stretched triangle's edges are no seam: its UVs span a gap, not a cut.
+    pairs = _seam_pairs(q[~stretched], tri_vert[~stretched], inside, n)
     return TextureLayout(texel_pos=pos, seam_pairs=pairs)
