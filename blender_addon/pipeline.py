@@ -266,8 +266,12 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
         _previews.update(inputs.object_name, prepared, computed)   # pictures for the panel
         if opt.save_blend:
             stage(0.9, "saving the .blend")
+            path = bpy.data.filepath
             try:
-                bpy.ops.wm.save_mainfile(filepath=bpy.data.filepath)
+                bpy.ops.wm.save_mainfile(filepath=path)
+                # Blender 4.2 reports some failed saves without raising.
+                if not os.path.isfile(path):
+                    raise RuntimeError(f"{path} is not a file after saving")
             except RuntimeError as exc:
                 why = str(exc).strip().removeprefix("Error:").strip()
                 raise DelightError(f"the new outputs are in {prepared.out_dir}, but the .blend could not be "

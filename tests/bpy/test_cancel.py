@@ -105,6 +105,9 @@ def test_a_blend_that_cannot_be_saved_is_one_error_after_the_files(tmp_path):
     out = tmp_path / "out"
     blend.unlink()
     blend.mkdir()   # a folder where the .blend was: saving fails, for root too
+    # Blender 4.2 would move that folder aside as the .blend1 backup: a non-empty folder there stops it.
+    (blend.parent / (blend.name + "1")).mkdir()
+    (blend.parent / (blend.name + "1") / "keep").write_bytes(b"")
     with pytest.raises(DelightError) as info:
         pipeline.run(s.scene, options(out, None, save_blend=True))
     assert str(info.value).startswith(f"the new outputs are in {out}, but the .blend could not be saved: ")
