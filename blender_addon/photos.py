@@ -74,8 +74,10 @@ def _byte_image_linear(img):
     return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
-def image_pixels(img, camera_name):
+def image_pixels(img, camera_name, label=None):
     """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top.
+
+    ``label`` names the photo in messages (default: the image's name and file).
 
     Raises
     ------
@@ -83,12 +85,13 @@ def image_pixels(img, camera_name):
         The image has no pixels (missing or unreadable file), or a float
         image holds NaN or infinite values.
     """
+    label = label or f"{img.name!r} ({_image_path(img)})"
     was_loaded = img.has_data
     try:
         w, h = img.size  # touching size/pixels loads the buffer
         if w == 0 or h == 0 or not img.has_data:
-            raise DelightError(f"camera {camera_name!r}: cannot read its photo {img.name!r} from "
-                               f"{_image_path(img)} (missing or unreadable file)")
+            raise DelightError(f"camera {camera_name!r}: cannot read its photo {label} (missing or unreadable "
+                               "file)")
         ch = img.channels
         is_float = img.is_float
         rgb = None
@@ -110,7 +113,7 @@ def image_pixels(img, camera_name):
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     bad = ~np.isfinite(rgb).all(axis=2)
     if bad.any():
-        raise DelightError(f"camera {camera_name!r}: its photo {img.name!r} ({_image_path(img)}) has "
+        raise DelightError(f"camera {camera_name!r}: its photo {label} has "
                            f"{int(bad.sum())} NaN or infinite pixels")
     return rgb
 
@@ -217,7 +220,7 @@ def _load_file(path, camera_name, check_existing=True):
     except RuntimeError as exc:
         raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
     try:
-        return image_pixels(img, camera_name)
+        return image_pixels(img, camera_name, label=path)
     finally:
         if img not in before:
             bpy.data.images.remove(img)

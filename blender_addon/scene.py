@@ -243,14 +243,19 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
     scene, view_layer = _scene_and_view_layer(context_or_scene)
     obj = _target(scene, view_layer, object_name)
     cams = _cameras(scene, view_layer, camera_names, selected_only)
-    for cam in cams:  # cheap checks first, before reading any photo
-        if cam.data.type != "PERSP":
-            raise DelightError(f"camera {cam.name!r} is {cam.data.type.lower()}; only perspective cameras "
-                               "are supported")
+    all_cameras = not camera_names and not selected_only
+    skipped = []
+    # Cheap checks first, before reading any photo.
+    other = [c for c in cams if c.data.type != "PERSP"]
+    if other:
+        kinds = ", ".join(f"{c.name!r} ({c.data.type.lower()})" for c in other)
+        if not all_cameras or len(cams) - len(other) < 2:
+            raise DelightError(f"only perspective cameras are supported; these are not: {kinds}")
+        skipped += [f"skipped camera {c.name!r}: it is {c.data.type.lower()}, not perspective" for c in other]
+        cams = [c for c in cams if c.data.type == "PERSP"]
     depsgraph = _depsgraph(scene, view_layer)
     mesh = mesh_arrays(obj, depsgraph)
-    views, skipped, errors = [], [], []
-    all_cameras = not camera_names and not selected_only
+    views, errors = [], []
     for cam in cams:
         try:
             views.append(_view(scene, depsgraph, cam, images_dir, working_res_mp))

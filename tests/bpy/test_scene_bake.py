@@ -295,7 +295,14 @@ def test_error_missing_image_file(tmp_path):
     s = build_scene(str(tmp_path), n_cameras=2, size=(16, 12), kind="exr")
     img = s.images["view1_cam"]
     os.remove(bpy.path.abspath(img.filepath))
-    _expect_error("camera 'view1_cam': cannot read its photo 'view1.exr' from .*view1.exr \\(missing", gather, s.scene)
+    _expect_error("camera 'view1_cam': cannot read its photo 'view1.exr' \\(.*view1.exr\\) \\(missing", gather, s.scene)
+
+
+def test_an_empty_photo_in_the_images_folder_is_named_by_its_path(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=2, size=(16, 12), photo="dir", kind="exr")
+    (tmp_path / "view1.exr").write_bytes(b"")
+    msg = _expect_error("camera 'view1_cam': cannot read its photo", gather, s.scene, images_dir=str(tmp_path))
+    assert str(tmp_path / "view1.exr") in msg and ".001" not in msg
 
 
 def test_error_nan_in_exr_photo(tmp_path):
@@ -323,10 +330,18 @@ def test_error_photo_aspect_does_not_match(tmp_path):
     assert gather(s.scene).views[1].photo.shape == (48, 65, 3)
 
 
-def test_error_non_perspective_camera(tmp_path):
-    s = build_scene(str(tmp_path), n_cameras=2, size=(16, 12))
+def test_error_non_perspective_cameras_are_all_named(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=4, size=(16, 12))
     s.cameras[0].data.type = "ORTHO"
-    _expect_error("camera 'view0_cam' is ortho; only perspective", gather, s.scene)
+    s.cameras[2].data.type = "PANO"
+    msg = _expect_error("only perspective cameras are supported", gather, s.scene,
+                        camera_names=[c.name for c in s.cameras])
+    assert "'view0_cam' (ortho)" in msg and "'view2_cam' (pano)" in msg
+    # With all cameras, they are left out while two perspective ones remain.
+    inputs = gather(s.scene)
+    assert [v.name for v in inputs.views] == ["view1_cam", "view3_cam"] and len(inputs.skipped) == 2
+    s.cameras[1].data.type = "ORTHO"
+    _expect_error("only perspective cameras are supported", gather, s.scene)
 
 
 def test_error_mesh_no_camera_sees(tmp_path):
