@@ -341,3 +341,16 @@ def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
         rmse[m] = float(np.mean(scaled_rmse(est[..., :3], gt[..., :3], seen)))
     # Measured: project 0.223, texture 0.134 (default levels, 10 iterations at the finest).
     assert rmse["texture"] < 0.7 * rmse["project"], rmse
+
+
+def test_a_photogrammetry_importer_scene_runs_with_no_options(tmp_path):
+    # As the importer leaves it: image planes beside the cameras, the last camera active, no mesh named.
+    s = build_scene(str(tmp_path), n_cameras=3, size=(32, 24), photo="plane", kind="exr")
+    bpy.context.view_layer.objects.active = s.cameras[-1]
+    blend = str(tmp_path / "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    before = digest(blend)
+    p = run_cli(blend)
+    assert p.returncode == 0, p.stderr
+    assert (tmp_path / "delight_Target" / "Target_albedo.exr").is_file()
+    assert digest(blend) == before
