@@ -39,8 +39,11 @@ def _image_path(img):
     return bpy.path.abspath(img.filepath, library=img.library) if img.filepath else "(no file)"
 
 
-def image_pixels(img, camera_name):
+def image_pixels(img, camera_name, info=None):
     """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top.
+
+    ``info`` (a dict), if given, receives ``"float"``: whether the image is
+    stored as floats (else 8-bit codes, which clip at 1.0).
 
     Raises
     ------
@@ -58,6 +61,8 @@ def image_pixels(img, camera_name):
         flat = np.empty(w * h * ch, dtype=np.float32)
         img.pixels.foreach_get(flat)
         is_float = img.is_float
+        if info is not None:
+            info["float"] = bool(is_float)
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
@@ -130,7 +135,7 @@ def _from_folder(images_dir, cam_name):
     return None
 
 
-def _load_file(path, camera_name):
+def _load_file(path, camera_name, info=None):
     """Read an image file through Blender, leaving ``bpy.data.images`` as it was."""
     import bpy
 
@@ -140,14 +145,16 @@ def _load_file(path, camera_name):
     except RuntimeError as exc:
         raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
     try:
-        return image_pixels(img, camera_name)
+        return image_pixels(img, camera_name, info)
     finally:
         if img not in before:
             bpy.data.images.remove(img)
 
 
-def find_photo(scene, cam_obj, images_dir=None):
+def find_photo(scene, cam_obj, images_dir=None, info=None):
     """The camera's photo as ``(H, W, 3)`` float32 linear, and where it came from.
+
+    ``info`` (a dict), if given, receives ``"float"`` (see :func:`image_pixels`).
 
     Returns
     -------
@@ -163,10 +170,10 @@ def find_photo(scene, cam_obj, images_dir=None):
     """
     img = _from_background(cam_obj)
     if img is not None:
-        return image_pixels(img, cam_obj.name), f"background image {img.name!r}"
+        return image_pixels(img, cam_obj.name, info), f"background image {img.name!r}"
     img = _from_image_plane(scene, cam_obj)
     if img is not None:
-        return image_pixels(img, cam_obj.name), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
+        return image_pixels(img, cam_obj.name, info), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
                                                  f"(image {img.name!r})"
     looked = ["its background images", f"an image plane object {' or '.join(map(repr, _plane_names(cam_obj.name)))}"]
     if images_dir:
@@ -177,7 +184,7 @@ def find_photo(scene, cam_obj, images_dir=None):
             raise DelightError(f"images folder {folder} does not exist")
         path = _from_folder(folder, cam_obj.name)
         if path is not None:
-            return _load_file(path, cam_obj.name), path
+            return _load_file(path, cam_obj.name, info), path
         looked.append(f"files named {' or '.join(map(repr, _stems(cam_obj.name)))} + an image extension in {folder}")
     else:
         looked.append("an images folder (none given)")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import photos as _photos
-from .core.io.photos import downscale
+from .core.io.photos import clipped_pixels, downscale
 from .camera import to_core_camera
 from .core.errors import DelightError
 from .core.scene import MeshArrays, SceneInputs, ViewInput
@@ -197,10 +197,16 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
     mesh = mesh_arrays(obj, depsgraph)
     views = []
     for cam in cams:
-        photo, source = _photos.find_photo(scene, cam, images_dir)
+        info = {}
+        photo, source = _photos.find_photo(scene, cam, images_dir, info)
         h, w = photo.shape[:2]
         small, scale = downscale(photo, working_res_mp)
+        clipped = None
+        if not info.get("float", True):
+            clipped = clipped_pixels(photo)
+            if scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
+                clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
         camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
                                 scale=scale)
-        views.append(ViewInput(name=cam.name, camera=camera, photo=small, source=source))
+        views.append(ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped))
     return SceneInputs(object_name=obj.name, mesh=mesh, views=views)

@@ -65,6 +65,15 @@ class Options:
         Save the .blend after wiring the material.
     overwrite : bool
         Replace existing output files.
+    mask_clipped : bool
+        Leave the pixels that touch an 8-bit photo's ceiling out of the solve
+        (:attr:`core.scene.ViewInput.clipped`).
+    occlusion : bool
+        Shade with the occlusion-aware SH transfer (:mod:`core.geometry.transfer`)
+        instead of the paper's ``nu(n)``.
+    solver : dict, optional
+        Further :class:`core.solve.solver.SolverParams` fields, for experts and
+        benchmarks (the fields above take precedence).
     """
 
     object_name: str | None = None
@@ -80,6 +89,9 @@ class Options:
     out_dir: str | None = None
     save_blend: bool = False
     overwrite: bool = False
+    mask_clipped: bool = False
+    occlusion: bool = False
+    solver: dict | None = None
 
     def validate(self):
         """Raise :class:`DelightError` for a bad value."""
@@ -130,6 +142,14 @@ def _layout(mesh, n):
     return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)
 
 
+def _unclipped(mask, clipped):
+    """The mask without the clipped pixels, unless that leaves nothing (or nothing is known)."""
+    if clipped is None:
+        return mask
+    keep = mask & ~clipped
+    return keep if keep.any() else mask
+
+
 def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None,
             cancel=None) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
@@ -148,6 +168,9 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     n = int(opt.texture_size)
     photos = [v.photo for v in inputs.views]
     masks = [b.mask for b in bakes]
+    solve_masks = masks
+    if opt.mask_clipped and opt.method != "project":
+        solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
     solve_progress = stage_progress(progress, "solve")
@@ -160,12 +183,19 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     if opt.method == "image":
         from .geometry.correspondences import find_correspondences
         correspondences = find_correspondences([v.camera for v in inputs.views], [b.position for b in bakes],
-                                               masks, [b.normal for b in bakes])
+                                               solve_masks, [b.normal for b in bakes])
         check_cancel(cancel)
-    problem = Problem(images=photos, masks=masks, normals=[b.normal for b in bakes],
+    transfer = None
+    if opt.occlusion and opt.method != "project":
+        from .geometry.transfer import pixel_transfer
+        solve_progress(0.0, "occlusion")
+        transfer = pixel_transfer(inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes],
+                                  [b.position for b in bakes], weights)
+        check_cancel(cancel)
+    problem = Problem(images=photos, masks=solve_masks, normals=[b.normal for b in bakes],
                       correspondences=correspondences, uv=uvs,
                       texture=layout if opt.method == "texture" else None,
-                      view_weight=weights, names=[v.name for v in inputs.views])
+                      view_weight=weights, names=[v.name for v in inputs.views], transfer=transfer)
     result = None
     lam, variation = opt.lam, None
     if opt.method != "project":
@@ -173,7 +203,8 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
             from .solve.lambda_choice import auto_lambda, describe_lambda
             lam, variation = auto_lambda(problem)
             solve_progress(0.0, describe_lambda(lam, variation, auto=True))
-        params = SolverParams(domain=opt.method, lam=float(lam), mu=float(opt.mu), max_iter=int(opt.max_iter))
+        params = SolverParams(**dict(opt.solver or {}, domain=opt.method, lam=float(lam), mu=float(opt.mu),
+                                     max_iter=int(opt.max_iter)))
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
     check_cancel(cancel)
@@ -188,7 +219,7 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
-        fused = fuse_views(maps, masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
+        fused = fuse_views(maps, problem.masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
         albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
     times["fuse"] = time.perf_counter() - t

@@ -4,7 +4,11 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["srgb_to_linear", "downscale"]
+__all__ = ["srgb_to_linear", "downscale", "clipped_pixels", "CLIP_CODE"]
+
+#: 8-bit code from which a channel counts as clipped: JPEG ringing spreads a saturated area's 255 over
+#: nearby codes, and a pixel whose true value lay beyond the ceiling says nothing about its albedo.
+CLIP_CODE = 250
 
 
 def srgb_to_linear(values):
@@ -47,3 +51,13 @@ def downscale(photo, max_mp):
     cols = ax @ rows.transpose(1, 0, 2).reshape(w, h2 * c)
     out = cols.reshape(w2, h2, c).transpose(1, 0, 2)
     return np.ascontiguousarray(out, dtype=np.float32), (w2 / w, h2 / h)
+
+
+def clipped_pixels(photo, code: int = CLIP_CODE) -> np.ndarray:
+    """Pixels of a decoded 8-bit photo at or above ``code`` in some channel, ``(H, W)`` bool.
+
+    ``photo`` holds linear values decoded by :func:`srgb_to_linear` (code 255
+    is 1.0).
+    """
+    level = float(srgb_to_linear(np.float32((code - 0.5) / 255.0)))
+    return np.any(np.asarray(photo) >= level, axis=-1)

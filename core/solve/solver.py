@@ -114,6 +114,19 @@ class SolverParams:
         Texture domain: when the texture has more seen texels than this many
         per photo pixel on the mesh, solve on a texture halved until it has
         not, and sample the result bilinearly back up (0 never does).
+    lighting : {"per_view", "shared", "fixed"}
+        The sigma-step's model (:mod:`core.solve.lighting`): 9 free SH
+        coefficients per view and channel (the paper); one world lighting
+        shared by all views, times a gain per view and channel (exposure and
+        white balance); or no sigma-step (the lighting given).
+    albedo_lam : float or None
+        None: one stage, as the paper. A number: two stages
+        (:func:`core.solve.lighting.solve_two_stage`): the lighting is
+        estimated with ``lam``, then the albedo solved again with that
+        lighting fixed and this TV weight.
+    light_size : int
+        Two stages: the largest texture the lighting stage solves on (0: the
+        problem's own).
     """
 
     domain: str = "texture"
@@ -134,6 +147,9 @@ class SolverParams:
     max_texels_per_pixel: float = 2.0
     extrapolate: float = 1.0
     preconditioner: str = "auto"
+    lighting: str = "per_view"
+    albedo_lam: float | None = None
+    light_size: int = 0
 
     def resolved(self) -> "SolverParams":
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -165,6 +181,12 @@ class SolverParams:
             raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
             raise ValueError("solver: levels and coarse_iter must be >= 1")
+        if self.lighting not in ("per_view", "shared", "fixed"):
+            raise ValueError(f"solver: lighting must be 'per_view', 'shared' or 'fixed', got {self.lighting!r}")
+        if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
+            raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
+        if self.light_size < 0:
+            raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
 
 
 @dataclass
@@ -253,6 +275,7 @@ class _Channel:
         self.cg_iter = params.cg_iter
         self.gauss_newton = params.gauss_newton
         self.extrapolate = params.extrapolate
+        self.lighting = params.lighting
         self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
@@ -313,19 +336,41 @@ class _Channel:
         if e <= self.e:
             self.rho, self.e = rho, e
 
-    def sigma_step(self):
+    def normal_equations(self):
+        """Per view, the sigma-step's 9x9 matrix and right-hand side at the current majorant: ``(m, 9, 9), (m, 9)``."""
         d = self.d
         rho_o = d.gather(self.rho)
         w = self.data_weights(rho_o)
         npix = d.nu.shape[0]
         g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
         h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
-        sigma = self.sigma.copy()
+        Ms, bs = np.empty((d.n_views, 9, 9)), np.empty((d.n_views, 9))
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            # float32 products (BLAS); the energy check below guards the result.
-            M = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
-            b = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
+            # float32 products (BLAS); the energy check in sigma_step guards the result.
+            Ms[v] = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
+            bs[v] = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
+        return Ms, bs
+
+    def sigma_step(self):
+        if self.lighting == "fixed":
+            return
+        d = self.d
+        Ms, bs = self.normal_equations()
+        if self.lighting == "shared":
+            from .lighting import shared_lighting_step
+            sigma = shared_lighting_step(Ms, bs, self.sigma)
+        else:
+            sigma = self._per_view_sigma(Ms, bs)
+        shade = _shading(d, sigma, self.ft)
+        e = self.energy(obs_shade=shade[d.obs_pixel])
+        if e <= self.e:
+            self._set_sigma(sigma, shade)
+            self.e = e
+
+    def _per_view_sigma(self, Ms, bs):
+        sigma = self.sigma.copy()
+        for v, (M, b) in enumerate(zip(Ms, bs)):
             if v == 0:
                 # Pin the scale: the constant term of view 0 stays fixed.
                 free = np.array([0, 1, 2, 4, 5, 6, 7, 8])
@@ -333,11 +378,7 @@ class _Channel:
                 sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
             else:
                 sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
-        shade = _shading(d, sigma, self.ft)
-        e = self.energy(obs_shade=shade[d.obs_pixel])
-        if e <= self.e:
-            self._set_sigma(sigma, shade)
-            self.e = e
+        return sigma
 
     def step(self):
         before = self.rho
@@ -371,6 +412,9 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params = params or SolverParams()
     params.check()
     params = params.resolved()
+    if params.albedo_lam is not None:
+        from .lighting import solve_two_stage
+        return solve_two_stage(problem, params, progress, cancel)
     t0 = time.perf_counter()
 
     def report(frac, msg):

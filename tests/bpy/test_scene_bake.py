@@ -146,6 +146,13 @@ def test_png_photo_is_decoded_from_srgb(tmp_path):
     assert abs(photo[6, 3, 0] - 0.5029) < 1e-3  # code 188 is linear 0.5029
     np.testing.assert_allclose(photo, srgb_to_linear(codes / 255.0), atol=1e-6)
     np.testing.assert_allclose(photo[0, 0], [1.0, 0.0, 0.0030353], atol=1e-6)
+    # An 8-bit photo knows where it clipped: the two pixels with a channel at 250 or more.
+    assert gather(scene).views[0].clipped.tolist() == np.any(codes >= 250, axis=2).tolist()
+
+
+def test_float_photo_has_no_clipped_pixels(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=1, size=(16, 12), kind="exr")
+    assert gather(s.scene).views[0].clipped is None
 
 
 def test_photo_sources_background_plane_and_folder(tmp_path):
