@@ -64,7 +64,7 @@ def test_fit_lighting_recovers_gains_and_light_from_the_true_albedo(exposed):
     assert np.all(shading_error(d, wrong, truth) > 0.1)
 
 
-@pytest.mark.parametrize("lighting", ["per_view", "shared"])
+@pytest.mark.parametrize("lighting", ["per_view", "shared", "coupled"])
 def test_energy_never_increases_in_either_stage(exposed, lighting):
     _, problem, _ = exposed
     one = solve(problem, SolverParams(lam=2.0, lighting=lighting, levels=1, max_iter=10, min_iter=10))
@@ -111,3 +111,19 @@ def test_bad_lighting_params():
         SolverParams(lighting="world").check()
     with pytest.raises(ValueError, match="albedo_lam"):
         SolverParams(albedo_lam=-1.0).check()
+
+
+@pytest.mark.parametrize("lighting", ["per_view", "coupled"])
+def test_a_25_coefficient_transfer_solves(exposed, lighting):
+    from core.geometry.transfer import open_factor
+    from core.solve.sh import sh_basis
+    _, problem, _ = exposed
+    p = problem
+    transfer = [sh_basis(n, order=4) * open_factor(25).astype(np.float32) for n in p.normals]
+    q = Problem(p.images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight,
+                transfer=transfer)
+    r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=6, min_iter=6))
+    assert r.sigma.shape == (6, 3, 25)
+    assert np.all(np.diff(r.energy) <= 0)
+    with pytest.raises(ValueError, match="9-coefficient"):
+        solve(q, SolverParams(lam=2.0, gauss_newton=True, levels=1, max_iter=1))

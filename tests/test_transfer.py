@@ -100,3 +100,28 @@ def test_pixel_transfer_of_open_surface_is_nu():
     assert out.shape == (h, w, 9)
     assert np.allclose(out[mask], sh_basis(normal[mask]), atol=1e-6)
     assert np.all(out[~mask] == 0)
+
+
+def test_higher_orders_are_spherical_harmonics():
+    # Orthogonal over the sphere (Fibonacci lattice quadrature), so each band is its own.
+    from core.solve.sh import sh_basis, sh_degree
+    d = sphere_directions(20000)
+    Y = sh_basis(d, np.float64, order=4)
+    gram = Y.T @ Y / len(d)
+    off = gram - np.diag(np.diag(gram))
+    assert Y.shape == (20000, 25) and np.abs(off).max() < 2e-3 * np.diag(gram).max()
+    assert sh_degree(25).tolist() == [1, 1, 1, 0, 2, 2, 2, 2, 2] + [3] * 7 + [4] * 9
+
+
+def test_open_surface_transfer_at_order_4():
+    # Funk-Hecke: an open point's transfer is nu(n) up to band 2, nothing in band 3 and -1/6 of band 4
+    # (the clamped cosine's coefficients), checked against direct quadrature of max(0, n.w) Y(w).
+    from core.geometry.transfer import open_factor
+    n = np.array([0.3, -0.5, 0.81])
+    n /= np.linalg.norm(n)
+    d = sphere_directions(200000)
+    Y = sh_basis(d, np.float64, order=4)
+    direct = (np.maximum(d @ n, 0) @ Y) * 4 * np.pi / len(d)
+    norm = np.array([2 * np.pi / 3] * 3 + [np.pi] + [np.pi / 4] * 21)
+    expected = open_factor(25) * sh_basis(n, np.float64, order=4)
+    assert np.abs(direct / norm - expected).max() < 2e-3

@@ -31,14 +31,21 @@ import numpy as np
 from .camera import Camera
 from .raycast import raycast
 from .texels import bilinear_texels, texel_index
-from ..solve.sh import sh_basis
+from ..solve.sh import sh_basis, sh_degree
 
-__all__ = ["sphere_directions", "band_of_coefficient", "visibility", "occlusion_transfer", "pixel_transfer"]
+__all__ = ["sphere_directions", "open_factor", "visibility", "occlusion_transfer", "pixel_transfer"]
 
-#: SH band of each of the 9 coefficients of :func:`core.solve.sh.sh_basis`.
-band_of_coefficient = np.array([1, 1, 1, 0, 2, 2, 2, 2, 2])
-# The clamped cosine's SH coefficients per band (Ramamoorthi and Hanrahan 2001).
-_A = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])[band_of_coefficient]
+# The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
+# vanish, so an open point sees nothing of band 3, and band 4 at -1/6 of its band-2 weight.
+_A_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, 0.0, -np.pi / 24])
+# Bands above 2 are scaled like band 2 (their A_l is 0 or small).
+_NORM_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, np.pi / 4, np.pi / 4])
+
+
+def open_factor(k: int) -> np.ndarray:
+    """Per coefficient, the transfer of an unoccluded point over its ``sh_basis`` value (1 up to band 2)."""
+    b = sh_degree(k)
+    return _A_BAND[b] / _NORM_BAND[b]
 
 
 def sphere_directions(k: int) -> np.ndarray:
@@ -114,23 +121,33 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
     return out
 
 
-def occlusion_transfer(points, normals, tri_pos, n_directions: int = 128, resolution: int = 512):
+def occlusion_transfer(points, normals, tri_pos, n_directions: int = 128, resolution: int = 512,
+                       bounce: float = 0.0, order: int = 2):
     """``T(x) - nu(n)`` at each point: the blocked directions' share of the transfer, ``(P, 9)`` float32.
 
     Zero for a point that sees the whole hemisphere around its normal; see
-    the module docstring for T.
+    the module docstring for T. ``bounce`` approximates one bounce of
+    interreflection: the blocked directions are not black but show the
+    surface around, taken as a uniform radiance ``bounce`` times the sky's
+    mean (an albedo times a shading of about the sky's), which gives back
+    that fraction of the blocked constant term. ``order`` 3 or 4 gives
+    ``(order + 1)^2`` coefficients (:func:`core.solve.sh.sh_basis`); bands
+    above 2 are scaled as band 2 is.
     """
     dirs = sphere_directions(n_directions)
     nrm = np.asarray(normals, np.float64)
     vis = visibility(points, nrm, tri_pos, dirs, resolution)
     cos = np.maximum(nrm @ dirs.T, 0.0)                       # (P, K)
     blocked = cos * (~vis)
-    basis = sh_basis(dirs, np.float64)                        # (K, 9)
-    return (-(blocked @ basis) * (4 * np.pi / n_directions) / _A).astype(np.float32)
+    basis = sh_basis(dirs, np.float64, order)                 # (K, (order + 1)^2)
+    occ = -(blocked @ basis) * (4 * np.pi / n_directions) / _NORM_BAND[sh_degree(basis.shape[1])]
+    occ[:, 3] *= 1.0 - bounce
+    return occ.astype(np.float32)
 
 
 def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, views_weight=None,
-                   grid: int = 128, n_directions: int = 128, resolution: int = 512):
+                   grid: int = 128, n_directions: int = 128, resolution: int = 512, bounce: float = 0.0,
+                   order: int = 2):
     """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
 
     The occlusion (:func:`occlusion_transfer`) is computed once per cell of a
@@ -146,10 +163,12 @@ def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, 
         Weights of the pixels in the cell means (the bake's view weight).
     grid, n_directions, resolution : int
         UV grid size, directions, depth map side.
+    bounce, order : float, int
+        See :func:`occlusion_transfer`.
 
     Returns
     -------
-    list of (H, W, 9) float32 arrays
+    list of (H, W, (order + 1)^2) float32 arrays
         Zero outside the masks.
     """
     n_cells = grid * grid
@@ -166,13 +185,15 @@ def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, 
     p = acc[used, 1:4] / acc[used, :1]
     n = acc[used, 4:7]
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    occ = np.zeros((n_cells, 9), np.float32)
-    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution)
+    k = (order + 1) ** 2
+    occ = np.zeros((n_cells, k), np.float32)
+    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order)
     valid = used.reshape(grid, grid)
+    scale = open_factor(k).astype(np.float32)
     out = []
     for uv, mask, nrm in zip(views_uv, views_mask, views_normal):
-        t = np.zeros(mask.shape + (9,), np.float32)
+        t = np.zeros(mask.shape + (k,), np.float32)
         idx, wts = bilinear_texels(uv[mask], valid)
-        t[mask] = sh_basis(nrm[mask]) + np.einsum("kj,kjc->kc", wts, occ[idx])
+        t[mask] = sh_basis(nrm[mask], order=order) * scale + np.einsum("kj,kjc->kc", wts, occ[idx])
         out.append(t)
     return out

@@ -33,11 +33,14 @@ from .discretization import image_domain, texture_domain
 from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
-__all__ = ["shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
+__all__ = ["Coupling", "shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
            "shading_error", "division_start"]
 
-# Coefficients of sigma free in the sigma-step; the constant term (index 3) is pinned to fix the scale.
-_FREE = np.array([0, 1, 2, 4, 5, 6, 7, 8])
+
+
+def _free(k):
+    """Coefficients of sigma free in the sigma-step; the constant term (index 3) is pinned to fix the scale."""
+    return np.delete(np.arange(k), 3)
 # Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
 # lighting says "dark", dividing by it blows the albedo up.
 SHADING_FLOOR = 0.2
@@ -85,12 +88,13 @@ def shared_lighting_step(Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray
         The new ``g_v s``.
     """
     s, g = split_gains(np.asarray(sigma_views, dtype=np.float64))
+    free = _free(s.size)
     for _ in range(rounds):
         A = np.einsum("v,vij->ij", g * g, Ms)
         r = np.einsum("v,vi->i", g, bs)
         if pin_constant:
-            rhs = r[_FREE] - A[_FREE, 3] * s[3]
-            s[_FREE] = np.linalg.lstsq(A[np.ix_(_FREE, _FREE)], rhs, rcond=1e-10)[0]
+            rhs = r[free] - A[free, 3] * s[3]
+            s[free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
         else:
             s = np.linalg.lstsq(A, r, rcond=1e-10)[0]
         q = np.einsum("i,vij,j->v", s, Ms, s)
@@ -100,6 +104,66 @@ def shared_lighting_step(Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray
         g_new[0] = 1.0
         g = g_new
     return g[:, None] * s[None, :]
+
+
+class Coupling:
+    """A prior that holds per-view lightings near one shared lighting: ``lighting="coupled"``.
+
+    The energy gains ``kappa / 2 * sum_v (sigma_v - g_v s)^T G_v (sigma_v - g_v s)``,
+    where ``s`` is a world lighting and ``g_v`` a gain per view (``g_0 = 1``),
+    both free, and ``G_v = Ibar^2 sum_p beta_p nu_p nu_p^T`` over the view's pixels
+    (``Ibar`` the mean observed value): the squared difference of the two
+    shadings over the view, in the units of the data. ``kappa = 0`` is the
+    paper's free lighting per view, ``kappa -> inf`` the shared one.
+    """
+
+    def __init__(self, d, c, kappa, sigma0):
+        self.kappa = float(kappa)
+        w = d.obs_weight.astype(np.float64)
+        values = d.values[d.obs_pixel, c].astype(np.float64)
+        ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
+        beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
+        k = d.nu.shape[1]
+        self.G = np.empty((d.n_views, k, k))
+        for v in range(d.n_views):
+            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+            self.G[v] = ibar2 * unpack_products(beta[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
+
+    def _fit_world(self, sigma, s, g, rounds=3):
+        G = self.G
+        for _ in range(rounds):
+            s = np.linalg.lstsq(np.einsum("v,vij->ij", g * g, G), np.einsum("v,vij,vj->i", g, G, sigma),
+                                rcond=1e-10)[0]
+            q = np.einsum("i,vij,j->v", s, G, s)
+            p = np.einsum("i,vij,vj->v", s, G, sigma)
+            ok = q > 1e-30
+            g = np.where(ok, p / np.where(ok, q, 1.0), g)
+            g[0] = 1.0
+        return s, g
+
+    def penalty(self, sigma, world=None):
+        s, g = self.world if world is None else world
+        diff = sigma - g[:, None] * s[None, :]
+        return 0.5 * self.kappa * float(np.einsum("vi,vij,vj->", diff, self.G, diff))
+
+    def step(self, Ms, bs, sigma_views, rounds=2):
+        """The sigma-step: per-view lightings and the world lighting, alternately minimised exactly."""
+        sigma = np.array(sigma_views, dtype=np.float64)
+        s, g = self.world
+        kG = self.kappa * self.G
+        free = _free(sigma.shape[1])
+        for _ in range(rounds):
+            for v in range(len(sigma)):
+                A = Ms[v] + kG[v]
+                r = bs[v] + kG[v] @ (g[v] * s)
+                if v == 0:
+                    rhs = r[free] - A[free, 3] * sigma[0, 3]
+                    sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+                else:
+                    sigma[v] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+            s, g = self._fit_world(sigma, s, g)
+        return sigma, (s, g)
 
 
 def _shade(d, sigma):
@@ -257,7 +321,8 @@ def _ls_equations(d, rho, c):
     npix = d.nu.shape[0]
     g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
     h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * d.values[:, c]
-    Ms, bs = np.empty((d.n_views, 9, 9)), np.empty((d.n_views, 9))
+    k = d.nu.shape[1]
+    Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
     for v in range(d.n_views):
         lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
         Ms[v] = unpack_products(g[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
@@ -279,7 +344,7 @@ def fit_lighting(d, rho: np.ndarray, lighting: str = "per_view", rounds: int = 5
         Alternations of the shared fit.
     """
     C = rho.shape[1]
-    out = np.empty((d.n_views, C, 9))
+    out = np.empty((d.n_views, C, d.nu.shape[1]))
     for c in range(C):
         Ms, bs = _ls_equations(d, rho, c)
         per_view = np.stack([np.linalg.lstsq(M, b, rcond=1e-10)[0] for M, b in zip(Ms, bs)])

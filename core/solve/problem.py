@@ -55,9 +55,10 @@ class Problem:
         normal and the viewing ray; grazing views count less. Default 1.
     names : list of str, optional
         View names, used in messages and output file names.
-    transfer : list of (H, W, 9) arrays, optional
+    transfer : list of (H, W, K) arrays, optional
         Per pixel, the SH transfer that replaces ``nu(normal)`` in the shading
-        ``sigma . nu`` (occlusion-aware, :mod:`core.geometry.transfer`).
+        ``sigma . nu`` (occlusion-aware, :mod:`core.geometry.transfer`); K is
+        9 (the paper's order 2), 16 or 25 (orders 3 and 4).
         Default: the paper's ``nu`` of the normals.
     """
 
@@ -136,8 +137,10 @@ class Problem:
             _fail(f"problem: {len(self.transfer)} transfer maps for {self.n_views} images")
         self.transfer = [np.asarray(t, dtype=np.float32) for t in self.transfer]
         for i, (t, mask) in enumerate(zip(self.transfer, self.masks)):
-            if t.shape != mask.shape + (9,):
-                _fail(f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)}")
+            if t.shape[:2] != mask.shape or t.ndim != 3 or t.shape[2] not in (9, 16, 25) \
+                    or t.shape[2] != self.transfer[0].shape[2]:
+                _fail(f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
+                      "(or 16 or 25 coefficients, the same in every view)")
             if not np.isfinite(t[mask]).all():
                 _fail(f"view {i} ({self.names[i]}): transfer inside the mask is NaN or infinite")
 
