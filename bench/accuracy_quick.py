@@ -12,9 +12,11 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
 * ``project``: the photos fused onto the texture (no delighting), the baseline;
 * ``ours``: :func:`core.pipeline.compute` with the default options, or with ``--set`` overrides
   (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.solver.SolverParams`);
-* ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling, the SH lighting fitted to the photos
-  divided by the true albedo (per view, 9 coefficients per channel, the model the solver uses), and the
-  albedo solved again with that lighting held fixed (:func:`core.solve.lighting.albedo_given_lighting`);
+* ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
+  the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
+  default), then the albedo solved again with that lighting held fixed and the albedo stage's TV weight
+  (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
+  ``ceiling_divide`` the photos divided by the fitted shading, without TV;
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
   observations after one scale per channel (the albedo's scale is free).
 
@@ -149,37 +151,49 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     return row
 
 
-def problem_of(inputs, bakes, size, sets=None):
-    """The texture-domain problem :func:`core.pipeline.compute` builds."""
+def problem_of(inputs, bakes, size, occlusion=False):
+    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking)."""
     from core.geometry.texels import texture_layout
     from core.solve.problem import Problem
 
     m = inputs.mesh
     layout = texture_layout(m.tri_uv, m.tri_pos, m.tri_vert, size)
+    transfer = None
+    if occlusion:
+        from core.geometry.transfer import pixel_transfer
+        transfer = pixel_transfer(m.tri_pos, [b.uv for b in bakes], [b.mask for b in bakes],
+                                  [b.normal for b in bakes], [b.position for b in bakes],
+                                  [b.view_weight for b in bakes])
     return Problem(images=[v.photo for v in inputs.views], masks=[b.mask for b in bakes],
                    normals=[b.normal for b in bakes], uv=[b.uv for b in bakes], texture=layout,
-                   view_weight=[b.view_weight for b in bakes], names=[v.name for v in inputs.views])
+                   view_weight=[b.view_weight for b in bakes], names=[v.name for v in inputs.views],
+                   transfer=transfer)
 
 
 def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
-    """The true-lighting ceiling and the error of our lighting (see the module docstring)."""
+    """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
+    from core.pipeline import ALBEDO_LAMBDA, Options
     from core.solve.discretization import texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error, solve_albedo
     from core.solve.solver import SolverParams
 
-    problem = problem_of(inputs, bakes, size, sets)
-    d = texture_domain(problem)
-    rho_true = gt.reshape(-1, 3)[d.texel_index]
-    sigma = fit_lighting(d, rho_true, "per_view")
-    out = {"lighting_error": float(np.mean(shading_error(d, ours.sigma, sigma)))}
-    div = np.full((size * size, 3), np.nan, np.float32)
-    div[d.texel_index] = division_start(d, sigma)
-    seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
-    out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
-    lam = sets.get("albedo_lam", 0.5)
-    r = solve_albedo(problem, sigma, SolverParams(lam=lam), d=d)
-    out["ceiling"] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
-    out["ceiling_lam"] = lam
+    lam = sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA
+    occlusion = sets.get("occlusion", Options.occlusion)
+    out = {"ceiling_lam": lam}
+    for label, occ in (("", occlusion), ("_nu", False)):
+        if label and not occlusion:
+            continue
+        problem = problem_of(inputs, bakes, size, occ)
+        d = texture_domain(problem)
+        sigma = fit_lighting(d, gt.reshape(-1, 3)[d.texel_index], "per_view")
+        if not label:
+            out["lighting_error"] = float(np.mean(shading_error(d, ours.sigma, sigma)))
+            div = np.full((size * size, 3), np.nan, np.float32)
+            div[d.texel_index] = division_start(d, sigma)
+            seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
+            out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
+        r = solve_albedo(problem, sigma, SolverParams(lam=lam), d=d)
+        out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
     return out
 
 
@@ -189,7 +203,8 @@ def line(row):
          f"  x{p / o:.2f}  {row['ours_seconds']:.0f}s  lam {row['lam']}")
     if "ceiling" in row:
         s += (f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
-              f"  light err {row['lighting_error']:.3f}")
+              + (f"  nu {np.mean(row['ceiling_nu']):.3f}" if "ceiling_nu" in row else "")
+              + f"  light err {row['lighting_error']:.3f}")
     if "lighting_mode" in row:
         s += f"  mode {row['lighting_mode']}"
     return s
@@ -199,7 +214,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fixtures", default=os.path.join(ROOT, "blend_fixtures"))
     p.add_argument("--only", nargs="*", help="fixture names (default: all)")
-    p.add_argument("--texture-size", type=int, default=256)
+    p.add_argument("--texture-size", type=int, default=256, help="0: the truth's size")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override an option or solver parameter")
     p.add_argument("--no-ceiling", action="store_true", help="skip the true-lighting ceiling")
     p.add_argument("--json", help="write the rows here")
@@ -210,7 +225,11 @@ def main(argv=None):
     sets = parse_sets(a.set)
     rows = []
     for name, d in found:
-        row = evaluate(name, d, a.texture_size, sets, ceiling=not a.no_ceiling)
+        size = a.texture_size
+        if not size:
+            with open(os.path.join(d, "scene.json")) as fh:
+                size = json.load(fh)["albedo_gt"]["size"][0]
+        row = evaluate(name, d, size, sets, ceiling=not a.no_ceiling)
         print(line(row), flush=True)
         rows.append(row)
     proj = np.mean([np.mean(r["project"]) for r in rows])

@@ -11,6 +11,10 @@ Options::
     --cameras NAME ...    the cameras (default: all)
     --images DIR          photos named like the cameras, for cameras without one
     --lambda L|auto  --mu M  --max-iter K   (lambda: auto; the rest: core.solve.solver.SolverParams)
+    --albedo-lambda L|none   TV weight of the albedo stage; none: one stage, as the paper
+    --lighting auto|per_view|shared|coupled   the lighting model (default auto)
+    --occlusion / --no-occlusion   shade with the occlusion-aware transfer or the paper's nu(n)
+    --mask-clipped / --no-mask-clipped   leave 8-bit pixels at the ceiling out of the solve
     --working-res MP      downscale photos to at most MP megapixels (default 1)
     --texture-size N      N x N albedo texture (default 1024)
     --method texture|image|project   (default texture; project = no delighting)
@@ -45,8 +49,19 @@ def script_argv(argv) -> list:
     return argv[argv.index("--") + 1:] if "--" in argv else []
 
 
+def _albedo_lambda(text):
+    """argparse type for ``--albedo-lambda``: a number >= 0, or ``none`` (one stage)."""
+    if text.strip().lower() == "none":
+        return None
+    v = float(text)
+    if not v >= 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0 or 'none', got {text!r}")
+    return v
+
+
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     from .core.cli import lambda_arg
+    from .core.pipeline import LIGHTING_MODES, Options
     from .pipeline import DEFAULTS
     p = argparse.ArgumentParser(
         prog="python -m blender_addon" if with_blend else "blender -b SCENE.blend -P blender_addon/cli.py --",
@@ -62,6 +77,19 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
                         "changes between them (measured on the photos)")
     p.add_argument("--mu", type=float, default=DEFAULTS.mu, metavar="M",
                    help=f"consistency weight, image method (default {DEFAULTS.mu:g})")
+    p.add_argument("--albedo-lambda", dest="albedo_lam", type=_albedo_lambda, default=Options.albedo_lam,
+                   metavar="L", help="TV weight of the albedo stage, after the lighting stage, or 'none' for one "
+                                     f"stage as the paper (default {Options.albedo_lam})")
+    p.add_argument("--lighting", choices=LIGHTING_MODES, default=Options.lighting,
+                   help="one lighting per photo, one shared by all (times a gain per photo), per photo held to a "
+                        "shared one, or auto: coupled when the photos share one light (default "
+                        f"{Options.lighting})")
+    p.add_argument("--occlusion", action=argparse.BooleanOptionalAction, default=Options.occlusion,
+                   help="shade with the occlusion-aware SH transfer instead of the paper's nu(n) "
+                        f"(default {'on' if Options.occlusion else 'off'})")
+    p.add_argument("--mask-clipped", action=argparse.BooleanOptionalAction, default=Options.mask_clipped,
+                   help="leave pixels at an 8-bit photo's ceiling out of the solve "
+                        f"(default {'on' if Options.mask_clipped else 'off'})")
     p.add_argument("--max-iter", type=int, default=DEFAULTS.max_iter, metavar="K",
                    help=f"outer iterations at the finest level (default {DEFAULTS.max_iter})")
     p.add_argument("--working-res", type=float, default=1.0, metavar="MP",
@@ -80,7 +108,8 @@ def options_from_args(args):
     return Options(object_name=args.object, camera_names=args.cameras, images_dir=args.images,
                    lam=args.lam, mu=args.mu, max_iter=args.max_iter, working_res_mp=args.working_res,
                    texture_size=args.texture_size, method=args.method, out_dir=args.out,
-                   save_blend=args.save, overwrite=args.overwrite)
+                   save_blend=args.save, overwrite=args.overwrite, albedo_lam=args.albedo_lam,
+                   lighting=args.lighting, occlusion=args.occlusion, mask_clipped=args.mask_clipped)
 
 
 class _Progress:

@@ -21,13 +21,15 @@ __all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "stage_progr
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
+#: TV weight of the albedo stage, chosen by leave-one-scene-out over the fixtures (docs/measurements.md).
+ALBEDO_LAMBDA = 1.0
 
 __all__ = ["METHODS", "Options", "Prepared", "Computed", "RunReport", "prepare", "compute", "finish", "run",
            "sample_texture"]
 
 METHODS = ("texture", "image", "project")
 
-METHODS = ("texture", "image", "project")
+LIGHTING_MODES = ("auto", "per_view", "shared", "coupled")
 
 # Share of the progress bar for each stage.
 _SPAN = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
@@ -49,9 +51,17 @@ class Options:
     selected_only : bool
         Use the selected cameras when no names are given.
     lam, mu, max_iter : float or None, float, int
-        The solver's TV weight, consistency weight (image domain) and outer
-        iterations. ``lam=None`` picks lambda from how much the lighting
-        differs between the photos (:mod:`core.solve.lambda_choice`).
+        The solver's TV weight (of the lighting stage when there are two),
+        consistency weight (image domain) and outer iterations. ``lam=None``
+        picks lambda: the fixed-light value with two stages, else from how
+        much the lighting differs between the photos
+        (:mod:`core.solve.lambda_choice`).
+    albedo_lam : float or None
+        TV weight of the albedo stage (:func:`core.solve.lighting.solve_two_stage`);
+        None solves in one stage, as the paper.
+    lighting : str
+        ``"auto"`` (:func:`core.solve.lighting.choose_lighting`), ``"per_view"``,
+        ``"shared"`` or ``"coupled"`` (:class:`core.solve.solver.SolverParams`).
     working_res_mp : float
         Photos are downscaled to at most this many megapixels.
     texture_size : int
@@ -89,8 +99,10 @@ class Options:
     out_dir: str | None = None
     save_blend: bool = False
     overwrite: bool = False
+    albedo_lam: float | None = ALBEDO_LAMBDA
+    lighting: str = "auto"
     mask_clipped: bool = False
-    occlusion: bool = False
+    occlusion: bool = True
     solver: dict | None = None
 
     def validate(self):
@@ -102,6 +114,10 @@ class Options:
                 continue
             if not np.isfinite(v) or v < lo:
                 raise DelightError(f"{name} must be a finite number >= {lo}, got {v}")
+        if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
+            raise DelightError(f"the albedo lambda must be a finite number >= 0, got {self.albedo_lam}")
+        if self.lighting not in LIGHTING_MODES:
+            raise DelightError(f"unknown lighting {self.lighting!r} (choose one of {', '.join(LIGHTING_MODES)})")
         if int(self.max_iter) < 1:
             raise DelightError(f"the iteration count must be at least 1, got {self.max_iter}")
         if not np.isfinite(self.working_res_mp) or self.working_res_mp <= 0:
@@ -197,14 +213,20 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
                       texture=layout if opt.method == "texture" else None,
                       view_weight=weights, names=[v.name for v in inputs.views], transfer=transfer)
     result = None
-    lam, variation = opt.lam, None
+    lam, variation, lighting = opt.lam, None, opt.lighting
     if opt.method != "project":
-        if lam is None:
-            from .solve.lambda_choice import auto_lambda, describe_lambda
-            lam, variation = auto_lambda(problem)
-            solve_progress(0.0, describe_lambda(lam, variation, auto=True))
+        from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
+        from .solve.lighting import choose_lighting
+        if lam is None or lighting == "auto":
+            auto, variation = auto_lambda(problem)
+            if lam is None:
+                # With two stages the lighting stage wants a strong TV whatever the light does.
+                lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
+                solve_progress(0.0, describe_lambda(lam, variation, auto=True))
+            if lighting == "auto":
+                lighting = choose_lighting(variation)
         params = SolverParams(**dict(opt.solver or {}, domain=opt.method, lam=float(lam), mu=float(opt.mu),
-                                     max_iter=int(opt.max_iter)))
+                                     max_iter=int(opt.max_iter), albedo_lam=opt.albedo_lam, lighting=lighting))
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
     check_cancel(cancel)
@@ -229,4 +251,6 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
                     sigma=None if result is None else np.asarray(result.sigma),
                     energy=[] if result is None else [float(e) for e in result.energy],
                     iterations=0 if result is None else int(result.iterations),
-                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation))
+                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation,
+                                                        albedo_lam=opt.albedo_lam, lighting_mode=lighting,
+                                                        occlusion=bool(opt.occlusion)))

@@ -121,7 +121,7 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
     return out
 
 
-def occlusion_transfer(points, normals, tri_pos, n_directions: int = 128, resolution: int = 512,
+def occlusion_transfer(points, normals, tri_pos, n_directions: int = 64, resolution: int = 256,
                        bounce: float = 0.0, order: int = 2):
     """``T(x) - nu(n)`` at each point: the blocked directions' share of the transfer, ``(P, 9)`` float32.
 
@@ -146,7 +146,7 @@ def occlusion_transfer(points, normals, tri_pos, n_directions: int = 128, resolu
 
 
 def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, views_weight=None,
-                   grid: int = 128, n_directions: int = 128, resolution: int = 512, bounce: float = 0.0,
+                   grid: int = 128, n_directions: int = 64, resolution: int = 256, bounce: float = 0.0,
                    order: int = 2):
     """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
 

@@ -33,7 +33,7 @@ from .discretization import image_domain, texture_domain
 from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
-__all__ = ["Coupling", "shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
+__all__ = ["choose_lighting", "Coupling", "shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
            "shading_error", "division_start"]
 
 
@@ -44,6 +44,17 @@ def _free(k):
 # Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
 # lighting says "dark", dividing by it blows the albedo up.
 SHADING_FLOOR = 0.2
+
+
+def choose_lighting(variation: float | None) -> str:
+    """The lighting model for a measured :func:`core.solve.lambda_choice.lighting_variation`.
+
+    One light for all photos (or too little overlap to tell): per-view
+    lightings held to a shared one (``"coupled"``); a light that moves
+    between the photos: free per view (``"per_view"``).
+    """
+    from .lambda_choice import VARYING_THRESHOLD
+    return "per_view" if variation is not None and variation > VARYING_THRESHOLD else "coupled"
 
 
 def split_gains(sigma_views: np.ndarray):

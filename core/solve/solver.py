@@ -153,9 +153,9 @@ class SolverParams:
     extrapolate: float = 1.0
     preconditioner: str = "auto"
     lighting: str = "per_view"
-    coupling: float = 1.0
+    coupling: float = 10.0
     albedo_lam: float | None = None
-    light_size: int = 0
+    light_size: int = 128
 
     def resolved(self) -> "SolverParams":
         """These parameters with "auto" and None replaced by what they stand for."""
