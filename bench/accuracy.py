@@ -9,9 +9,13 @@ For each folder of ``--fixtures`` with a ``scene.json`` and a ``scene.blend``, t
 ``python -m blender_addon`` process (:mod:`bench.headless`), texture size = the ground truth's size:
 
 * ``project``: no delighting (the photos fused onto the texture), the baseline;
-* ``texture``: our default (texture domain, default lambda, mu, iterations);
-* ``image (paper)``: the paper's algorithm (image domain) with its figures' parameters: lambda = 8, mu = 1000
-  for the Lambertian scene (fig. 1), lambda = 2.5, mu = 1000 for the others (fig. 2, 5).
+* ``texture``: our default (texture domain, occlusion-aware transfer, two stages, the lighting model chosen
+  from the photos);
+* ``texture (paper's model)``: the paper's model and schedule in the texture domain (``nu(n)``, one stage,
+  lighting free per view, auto lambda): our default before issue 13;
+* ``image (paper)``: the paper's algorithm (image domain, its model) with its figures' parameters: lambda = 8,
+  mu = 1000 for the Lambertian scene (fig. 1), lambda = 2.5, mu = 1000 for the others (fig. 2, 5).
+  ``--no-image`` leaves it out (it takes most of the time).
 
 Columns, per channel R / G / B:
 
@@ -63,13 +67,20 @@ def fixtures(root, only=None):
     return out
 
 
-def rows_for(name):
-    """(row label, CLI arguments) for one fixture."""
+#: The paper's model and one-stage schedule (our default before issue 13).
+PAPER_MODEL = ["--albedo-lambda", "none", "--no-occlusion", "--lighting", "per_view"]
+
+
+def rows_for(name, image=True):
+    """(folder, row label, CLI arguments) for one fixture."""
     lam = PAPER_LAMBDA.get(name, PAPER_LAMBDA_DEFAULT)
-    return [("project", ["--method", "project"]),
-            ("texture (ours, default)", ["--method", "texture"]),
-            (f"image (paper, lambda {lam:g}, mu {PAPER_MU:g})",
-             ["--method", "image", "--lambda", lam, "--mu", PAPER_MU])]
+    rows = [("project", "project", ["--method", "project"]),
+            ("texture", "texture (ours, default)", ["--method", "texture"]),
+            ("paper_model", "texture (paper's model)", ["--method", "texture", *PAPER_MODEL])]
+    if image:
+        rows.append(("image", f"image (paper, lambda {lam:g}, mu {PAPER_MU:g})",
+                     ["--method", "image", "--lambda", lam, "--mu", PAPER_MU, *PAPER_MODEL]))
+    return rows
 
 
 def texture_rmse(albedo_path, gt):
@@ -97,17 +108,18 @@ def views_rmse(out_dir, report, fixture_dir, record):
     return scaled_rmse(np.concatenate(est), np.concatenate(tru)).tolist()
 
 
-def run_fixture(name, fixture_dir, work):
+def run_fixture(name, fixture_dir, work, image=True):
     with open(os.path.join(fixture_dir, "scene.json")) as fh:
         record = json.load(fh)
     gt = read_exr(os.path.join(fixture_dir, record["albedo_gt"]["file"]))[0]
     obj = record["mesh"]["object"]
     out = []
-    for k, (label, args) in enumerate(rows_for(name)):
-        out_dir = os.path.join(work, name, ["project", "texture", "image"][k])
+    for folder, label, args in rows_for(name, image):
+        out_dir = os.path.join(work, name, folder)
         r = run_headless(os.path.join(fixture_dir, "scene.blend"), out_dir, "--object", obj,
                          "--texture-size", gt.shape[0], *args)
-        row = {"fixture": name, "row": label, "args": [str(a) for a in args], "returncode": r.returncode,
+        row = {"fixture": name, "key": folder, "row": label, "args": [str(a) for a in args],
+               "returncode": r.returncode,
                "wall_s": r.wall_s, "peak_mb": r.peak_mb}
         if r.returncode != 0:
             row["error"] = r.log[-2000:]
@@ -155,6 +167,24 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def summary(rows) -> str:
+    """Per kind of row, over the fixtures: mean RMSE, and the mean, geometric mean and least of project / row."""
+    lines = ["| row | fixtures | mean RMSE | mean project / row | geometric mean | least |", "|---|---|---|---|---|---|"]
+    keys = [k for k in dict.fromkeys(r.get("key") for r in rows) if k and k != "project"]
+    for key in keys:
+        rel, rmse = [], []
+        for r in rows:
+            proj = next((p for p in rows if p["fixture"] == r["fixture"] and p.get("key") == "project"), None)
+            if r.get("key") != key or not r.get("texture_rmse") or not proj or not proj.get("texture_rmse"):
+                continue
+            rmse.append(np.mean(r["texture_rmse"]))
+            rel.append(np.mean(proj["texture_rmse"]) / rmse[-1])
+        if rel:
+            lines.append(f"| {key} | {len(rel)} | {np.mean(rmse):.4f} | {np.mean(rel):.2f}x | "
+                         f"{np.exp(np.mean(np.log(rel))):.2f}x | {np.min(rel):.2f}x |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fixtures", default=os.path.join(ROOT, "blend_fixtures"))
@@ -162,6 +192,7 @@ def main(argv=None):
     p.add_argument("--work", default=os.path.join(ROOT, "build", "bench", "accuracy"),
                    help="where the runs write their outputs")
     p.add_argument("--json", default=os.path.join(ROOT, "bench", "accuracy.json"), help="results file")
+    p.add_argument("--no-image", action="store_true", help="leave out the image-domain (paper) rows")
     a = p.parse_args(argv)
     found = fixtures(a.fixtures, a.only)
     if not found:
@@ -169,7 +200,7 @@ def main(argv=None):
     started = datetime.datetime.now().isoformat(timespec="seconds")
     rows = []
     for name, d in found:
-        rows += run_fixture(name, d, a.work)
+        rows += run_fixture(name, d, a.work, image=not a.no_image)
     result = {"started": started, "commit": commit(), "machine": machine(), "rows": rows,
               "paper": {k: {"scene": v[0], "rmse": v[1]} for k, v in PAPER.items()}, "aim_ratio": AIM_RATIO}
     os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
@@ -177,6 +208,8 @@ def main(argv=None):
         json.dump(result, fh, indent=1)
     print(f"\ncommit {result['commit']}, {result['machine']}, {started}\n")
     print(table(rows))
+    print()
+    print(summary(rows))
     print(f"\nwrote {a.json}")
 
 

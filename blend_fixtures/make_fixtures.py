@@ -44,7 +44,8 @@ ASSETS = os.path.join(HERE, "assets")
 # --------------------------------------------------------------------------------------------------------------
 
 HDRI_LICENCE = ("CC0, Greg Zaal / Poly Haven, bundled with Blender (datafiles/studiolights/world/license.txt): "
-                "forest=ninomaru_teien, studio=studio_small_01, interior=hotel_room, sunrise=spruit_sunrise")
+                "forest=ninomaru_teien, studio=studio_small_01, interior=hotel_room, sunrise=spruit_sunrise, "
+                "courtyard=courtyard, city=portland_landing_pad, sunset=venice_sunset, night=moonless_golf (probably)")
 PHOTO_LICENCES = {
     "chelsea.png": "CC0, photographer Stefan van der Walt (scikit-image data: skimage.data.chelsea)",
     "coffee.png": "CC0, photographer Rachel Michetti (scikit-image data: skimage.data.coffee)",
@@ -74,6 +75,67 @@ SCENES = {
         lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.6, 0.45],
                       rotation_step_deg=137.50776405),
         photo_format="JPEG", user_mesh="fine"),
+    # The scenes below widen the set for choosing defaults by leave-one-scene-out: other meshes with concavities,
+    # albedos, HDRIs (with a sun in the map or a sun lamp, or neither) and the faults of real captures. The EXR
+    # and PNG ones are 256x192 (rendering noise compresses poorly), the JPEG ones 320x240.
+    # (e) torus (hole, inner ring in its own shadow), flat patches, soft environment, EXR with transparent film.
+    "torus_patches": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=5000, film_transparent=True,
+        mesh="torus", albedo="patches", interpolation="Closest", material="diffuse",
+        lighting=dict(kind="hdri", hdri=["courtyard"], strength=0.6, rotation_deg=[60.0]),
+        photo_format="EXR", user_mesh="fine"),
+    # (f) open bowl (the rim shadows the inside), fine checker, partly specular, sun lamp: lit squares clip in 8 bit.
+    "bowl_checker": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=6000,
+        mesh="bowl", albedo="checker", interpolation="Linear", material="principled",
+        lighting=dict(kind="sun", sun_strength=5.0, sun_angle_deg=3.0, sun_elevation_deg=55.0,
+                      sun_azimuth_deg=30.0, hdri=["city"], strength=0.3, rotation_deg=[0.0]),
+        photo_format="PNG", user_mesh="fine"),
+    # (g) a rock with dents (displaced icosphere), photographic albedo, low warm sun + sunset sky, JPEG q90.
+    "rock_photo": dict(
+        resolution=(320, 240), n_cameras=13, samples=32, texture_size=256, seed=7000,
+        mesh="rock", albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
+        lighting=dict(kind="sun", sun_strength=3.0, sun_angle_deg=4.0, sun_elevation_deg=25.0,
+                      sun_azimuth_deg=-60.0, hdri=["sunset"], strength=0.6, rotation_deg=[45.0]),
+        photo_format="JPEG", jpeg_quality=90, user_mesh="fine"),
+    # (h) (g)'s photos with a smoothed, 4x coarser user mesh (same UV islands).
+    "rock_coarse": dict(base="rock_photo", user_mesh="coarse"),
+    # (i) stairs (cast shadows of each step on the next), fine noise albedo, sun lamp + night sky, EXR.
+    "stairs_noise": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=8000, film_transparent=True,
+        mesh="stairs", albedo="noise", interpolation="Linear", material="diffuse",
+        lighting=dict(kind="sun", sun_strength=3.0, sun_angle_deg=2.0, sun_elevation_deg=40.0,
+                      sun_azimuth_deg=125.0, hdri=["night"], strength=1.5, rotation_deg=[0.0]),
+        photo_format="EXR", user_mesh="fine"),
+    # (j) Suzanne under the studio HDRI, 8-bit PNG with per-photo exposure and white balance.
+    "suzanne_exposure": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=9000,
+        albedo="photo:chelsea.png", interpolation="Linear", material="diffuse",
+        lighting=dict(kind="hdri", hdri=["studio"], strength=1.2, rotation_deg=[200.0]),
+        photo_format="PNG", user_mesh="fine", capture=dict(exposure_ev=0.5, white_balance=0.10)),
+    # (k) torus, photographic albedo, lighting varying per photo: the sun lamp moves, the sky turns. EXR.
+    "torus_varying_sun": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=10000, film_transparent=True,
+        mesh="torus", albedo="photo:chelsea.png", interpolation="Linear", material="diffuse",
+        lighting=dict(kind="sun_per_view", sun_strength=3.0, sun_angle_deg=5.0, sun_elevation_deg=[30.0, 60.0],
+                      sun_azimuth_deg=0.0, sun_azimuth_step_deg=137.50776405, hdri=["sunrise"], strength=0.5,
+                      rotation_step_deg=97.0),
+        photo_format="EXR", user_mesh="fine"),
+    # (l) bowl, photographic albedo, HDRI with the sun in the map, PNG; the user's cameras are ~1 px off.
+    "bowl_jitter": dict(
+        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=11000,
+        mesh="bowl", albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
+        lighting=dict(kind="hdri", hdri=["city"], strength=0.8, rotation_deg=[130.0]),
+        photo_format="PNG", user_mesh="fine", capture=dict(jitter_px=1.0)),
+    # (m) a real capture: stairs, patches, partly specular, sun + courtyard; JPEG q85 with the background,
+    # per-photo exposure and white balance, 8-bit clipping, cameras ~1 px off.
+    "stairs_capture": dict(
+        resolution=(320, 240), n_cameras=13, samples=32, texture_size=256, seed=12000,
+        mesh="stairs", albedo="patches", interpolation="Closest", material="principled",
+        lighting=dict(kind="sun", sun_strength=2.5, sun_angle_deg=3.0, sun_elevation_deg=50.0,
+                      sun_azimuth_deg=-140.0, hdri=["courtyard"], strength=0.3, rotation_deg=[300.0]),
+        photo_format="JPEG", jpeg_quality=85, user_mesh="fine",
+        capture=dict(exposure_ev=0.5, white_balance=0.10, jitter_px=1.0)),
 }
 
 # Piecewise-constant albedo of lambert_sky, linear Rec.709 (regions are defined on the surface, in 3D).
@@ -92,6 +154,11 @@ MESH_OBJECT = "Subject"
 UV_ANGLE_LIMIT_DEG = 55.0   # 66 (the default) gave folded, overlapping islands on this mesh
 UV_ISLAND_MARGIN = 0.01
 COARSE_SMOOTH = dict(factor=0.5, repeat=10)
+COARSE_SMOOTH_ROCK = dict(factor=0.5, repeat=3)   # the rock has no plinth; more passes flatten its dents
+# Generated albedos (linear Rec.709), for the meshes other than Suzanne.
+PATCH_COUNT = 14                   # Voronoi cells of seeded points in the object's bounding box
+CHECKER = dict(cell_m=0.08, colours=((0.72, 0.68, 0.60), (0.10, 0.14, 0.24)))
+NOISE = dict(base_per_m=5.0, octaves=3, gain=0.75, colours=((0.62, 0.48, 0.30), (0.20, 0.30, 0.22), (0.75, 0.74, 0.70)))
 
 RENDER_COMMON = dict(
     engine="CYCLES", device="CPU", use_adaptive_sampling=False, use_denoising=False,
@@ -131,15 +198,21 @@ def srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
+def linear_to_srgb(c):
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.maximum(c, 0.0031308) ** (1 / 2.4) - 0.055)
+
+
 def hdri_path(name):
     return os.path.join(bpy.utils.system_resource("DATAFILES"), "studiolights", "world", name + ".exr")
 
 
 def write_exr_rgba(path, rgba, half=True):
+    """Write (H, W, 4) as RGBA, or (H, W, 3) as RGB."""
     import OpenEXR
     arr = np.ascontiguousarray(rgba, dtype=np.float16 if half else np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    OpenEXR.File(header, {"RGBA": arr}).write(path)
+    OpenEXR.File(header, {"RGBA" if arr.shape[-1] == 4 else "RGB": arr}).write(path)
 
 
 def read_exr(path):
@@ -253,19 +326,7 @@ def build_meshes():
     mid = _mesh_from_bmesh("mid", bm)
     bpy.data.meshes.remove(head)
 
-    # Smart UV Project (operator: needs the object in edit mode).
-    obj = bpy.data.objects.new("_tmp_uv", mid)
-    bpy.context.scene.collection.objects.link(obj)
-    bpy.context.view_layer.objects.active = obj
-    obj.select_set(True)
-    bpy.ops.object.mode_set(mode="EDIT")
-    bpy.ops.mesh.select_all(action="SELECT")
-    uv_params = dict(angle_limit=math.radians(UV_ANGLE_LIMIT_DEG), island_margin=UV_ISLAND_MARGIN, area_weight=0.0,
-                     correct_aspect=True, scale_to_bounds=False)
-    bpy.ops.uv.smart_project(**uv_params)
-    bpy.ops.object.mode_set(mode="OBJECT")
-    bpy.data.objects.remove(obj)
-    mid.uv_layers.active.name = "UVMap"
+    uv_params = smart_uv(mid)
 
     fine = _apply_subsurf(mid, 1, uv_smooth="NONE")
     fine.name = "fine"
@@ -282,18 +343,38 @@ def build_meshes():
     return fine, mid, info
 
 
-def make_coarse(mid, fine):
-    """The 'coarse' user mesh: ``mid`` (4x fewer faces than ``fine``) with the head's vertices smoothed."""
+def smart_uv(me):
+    """Smart UV Project on ``me`` in place, as the map ``UVMap``; returns the operator's parameters."""
+    obj = bpy.data.objects.new("_tmp_uv", me)      # the operator needs the object in edit mode
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    uv_params = dict(angle_limit=math.radians(UV_ANGLE_LIMIT_DEG), island_margin=UV_ISLAND_MARGIN, area_weight=0.0,
+                     correct_aspect=True, scale_to_bounds=False)
+    bpy.ops.uv.smart_project(**uv_params)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bpy.data.objects.remove(obj)
+    me.uv_layers.active.name = "UVMap"
+    return uv_params
+
+
+def make_coarse(mid, fine, smooth=COARSE_SMOOTH, keep_plinth=True):
+    """The 'coarse' user mesh: ``mid`` (4x fewer faces than ``fine``) with its vertices smoothed.
+
+    With ``keep_plinth`` the lowest connected component (Suzanne's plinth) is left as it is.
+    """
     coarse = mid.copy()
     coarse.name = "coarse"
     bm = bmesh.new()
     bm.from_mesh(coarse)
     co = np.array([v.co for v in bm.verts])
     comp = components(len(bm.verts), np.array([[e.verts[0].index, e.verts[1].index] for e in bm.edges]))
-    plinth_label = comp[np.argmin(co[:, 2])]
+    plinth_label = comp[np.argmin(co[:, 2])] if keep_plinth else -1
     verts = [v for v in bm.verts if comp[v.index] != plinth_label]
-    for _ in range(COARSE_SMOOTH["repeat"]):
-        bmesh.ops.smooth_vert(bm, verts=verts, factor=COARSE_SMOOTH["factor"],
+    for _ in range(smooth["repeat"]):
+        bmesh.ops.smooth_vert(bm, verts=verts, factor=smooth["factor"],
                               use_axis_x=True, use_axis_y=True, use_axis_z=True)
     bm.to_mesh(coarse)
     bm.free()
@@ -304,6 +385,215 @@ def make_coarse(mid, fine):
     d = np.array([tree.find_nearest(v.co)[3] for v in coarse.vertices])
     fbm.free()
     return coarse, dict(mean=float(d.mean()), p95=float(np.percentile(d, 95)), max=float(d.max()))
+
+
+def _revolve(name, profile, n_seg, closed, margin=0.01):
+    """A surface of revolution about Z with two UV islands (the halves x >= 0 and x < 0 of the turn).
+
+    ``profile``: (K, 2) points (r, z); ``closed``: the profile is a loop (torus), else its ends lie on the axis
+    (r = 0: one pole vertex each) and the surface is closed by them. In each island u runs along the turn and v
+    along the profile by arc length; island h covers v in [h/2 + margin, h/2 + 1/2 - margin].
+    """
+    profile = np.asarray(profile, dtype=np.float64)
+    k_n = len(profile)
+    seg = np.diff(np.vstack([profile, profile[:1]]) if closed else profile, axis=0)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
+    tv = arc / arc[-1]                                   # k_n (+1 if closed) values in [0, 1]
+    pole = profile[:, 0] <= 1e-9
+    half = n_seg // 2
+    bm = bmesh.new()
+    ring = []
+    for k, (r, z) in enumerate(profile):
+        if pole[k]:
+            v = bm.verts.new((0.0, 0.0, z))
+            ring.append([v] * n_seg)
+        else:
+            ring.append([bm.verts.new((r * math.cos(2 * math.pi * j / n_seg), r * math.sin(2 * math.pi * j / n_seg), z))
+                         for j in range(n_seg)])
+    uv_of = {}
+    for k in range(k_n if closed else k_n - 1):
+        k2 = (k + 1) % k_n
+        for j in range(n_seg):
+            h, jl = divmod(j, half)
+            corners = [(k, j, jl, tv[k]), (k, (j + 1) % n_seg, jl + 1, tv[k]),
+                       (k2, (j + 1) % n_seg, jl + 1, tv[k + 1]), (k2, j, jl, tv[k + 1])]
+            verts, uvs = [], []
+            for kk, jj, ul, t in corners:
+                v = ring[kk][jj]
+                if v in verts:
+                    continue
+                u = ul if not pole[kk] else jl + 0.5          # a pole's corner sits mid-segment
+                verts.append(v)
+                uvs.append((margin + (1 - 2 * margin) * u / half, 0.5 * h + margin + (0.5 - 2 * margin) * t))
+            f = bm.faces.new(verts)
+            uv_of[f] = uvs
+    uv_layer = bm.loops.layers.uv.new("UVMap")
+    for f, uvs in uv_of.items():
+        for loop, uv in zip(f.loops, uvs):
+            loop[uv_layer].uv = uv
+    bmesh.ops.recalc_face_normals(bm, faces=bm.faces)
+    return _mesh_from_bmesh(name, bm)
+
+
+def _transform(me, matrix):
+    me.transform(matrix)
+    me.update()
+
+
+def build_torus():
+    big, small, n_seg, n_ring, tilt = 0.75, 0.3, 96, 36, 35.0
+    a = 2 * math.pi * np.arange(n_ring) / n_ring
+    me = _revolve("torus", np.stack([big + small * np.cos(a), small * np.sin(a)], axis=1), n_seg, closed=True)
+    _transform(me, Matrix.Rotation(math.radians(tilt), 4, "X"))
+    return me, None, dict(
+        description="torus (major radius %.2f m, minor %.2f m, %d x %d quads) tilted %.0f deg about X; UV: two "
+                    "islands (the halves of the turn), u along the turn, v around the tube" % (big, small, n_seg,
+                                                                                            n_ring, tilt),
+        uv="parametric, two islands, margin 0.01")
+
+
+def build_bowl():
+    """A thick-walled open bowl (quarter-ellipse walls, rounded rim), tilted towards -Y."""
+    def arc_pts(f, a0, a1, step=0.035):
+        ts = np.linspace(a0, a1, 400)
+        p = np.array([f(t) for t in ts])
+        d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        m = max(2, int(round(d[-1] / step)) + 1)
+        return np.array([np.interp(np.linspace(0, d[-1], m), d, p[:, c]) for c in range(2)]).T
+    outer_bottom = arc_pts(lambda t: (t, 0.0), 0.0, 0.30)
+    outer = arc_pts(lambda t: (0.30 + 0.60 * math.sin(t), 0.65 * (1 - math.cos(t))), 0.0, math.pi / 2)
+    rim = arc_pts(lambda t: (0.87 + 0.03 * math.cos(t), 0.65 + 0.03 * math.sin(t)), 0.0, math.pi, step=0.02)
+    inner = arc_pts(lambda t: (0.27 + 0.57 * math.sin(t), 0.07 + 0.58 * (1 - math.cos(t))), math.pi / 2, 0.0)
+    inner_bottom = arc_pts(lambda t: (t, 0.07), 0.27, 0.0)
+    prof = np.vstack([outer_bottom, outer[1:], rim[1:], inner[1:], inner_bottom[1:]])
+    tilt = 25.0
+    me = _revolve("bowl", prof, 64, closed=False)
+    _transform(me, Matrix.Rotation(math.radians(tilt), 4, "X") @ Matrix.Translation((0.0, 0.0, -0.33)))
+    return me, None, dict(
+        description="open bowl: surface of revolution of a profile (outer bottom, quarter-ellipse outer wall to "
+                    "radius 0.9 m, rounded rim, inner wall, inner bottom; wall 0.03-0.07 m thick; %d profile "
+                    "points, 64 segments, poles at the two bottom centres), tilted %.0f deg about X so that it "
+                    "opens towards -Y; UV: two islands (the halves of the turn), u along the turn, v along the "
+                    "profile by arc length" % (len(prof), tilt),
+        uv="parametric, two islands, margin 0.01")
+
+
+ROCK_SEED = 77
+
+
+def build_rock():
+    """A displaced icosphere with three dents; UV by Smart UV Project on the coarse level."""
+    bm = bmesh.new()
+    bmesh.ops.create_icosphere(bm, subdivisions=4, radius=1.0)
+    rng = np.random.default_rng(ROCK_SEED)
+    d = np.array([v.co.normalized() for v in bm.verts])
+    r = np.ones(len(d))
+    for _ in range(6):
+        f = rng.normal(size=3)
+        f *= rng.uniform(1.5, 3.0) / np.linalg.norm(f)
+        r += 0.07 * np.sin(d @ f + rng.uniform(0, 2 * math.pi))
+    dents = rng.normal(size=(3, 3))
+    dents /= np.linalg.norm(dents, axis=1, keepdims=True)
+    for c in dents:
+        ang = np.arccos(np.clip(d @ c, -1, 1))
+        r -= 0.28 * np.exp(-(ang / 0.35) ** 2)
+    for v, dv, rv in zip(bm.verts, d, r):
+        v.co = Vector((0.8 * rv * dv[0], 0.8 * rv * dv[1], 0.6 * rv * dv[2]))
+    mid = _mesh_from_bmesh("mid", bm)
+    uv_params = smart_uv(mid)
+    fine = _apply_subsurf(mid, 1, uv_smooth="NONE")
+    fine.name = "fine"
+    return fine, mid, dict(
+        description="rock: icosphere (bmesh subdivisions=4: 1280 triangles) displaced radially by 6 random sinusoids "
+                    "(amplitude 0.07) and 3 Gaussian dents (depth 0.28, width 0.35 rad), scaled (0.8, 0.8, 0.6) m, "
+                    "seed %d; UV by Smart UV Project on that level; the fine mesh is that subdivided once "
+                    "(Catmull-Clark, UV smoothing 'NONE', so the UV islands are identical)" % ROCK_SEED,
+        smart_uv_project={k: (round(math.degrees(v), 3) if k == "angle_limit" else v) for k, v in uv_params.items()})
+
+
+def planar_islands(me, margin=0.01):
+    """UV map ``UVMap``: one island per (planar) face, true to scale, shelf-packed into the unit square.
+
+    (Smart UV Project packs this mesh's islands differently from run to run.) Each face is projected on its
+    plane (u along its longest edge); islands go in rows by decreasing height, at the largest common scale that
+    fits, ``margin`` apart.
+    """
+    co = np.array([v.co for v in me.vertices])
+    flat = []
+    for f in me.polygons:
+        p = co[list(f.vertices)]
+        edges = np.roll(p, -1, axis=0) - p
+        a = edges[np.argmax(np.linalg.norm(edges, axis=1))]
+        a /= np.linalg.norm(a)
+        b = np.cross(np.array(f.normal), a)
+        q = np.stack([p @ a, p @ b], axis=1)
+        flat.append(q - q.min(axis=0))
+    size = np.array([q.max(axis=0) for q in flat])
+    order = sorted(range(len(flat)), key=lambda i: (-size[i, 1], i))
+
+    def place(scale):
+        x = y = row_h = 0.0
+        out = {}
+        for i in order:
+            w, h = size[i] * scale
+            if x + w + margin > 1.0:
+                x, y, row_h = 0.0, y + row_h + margin, 0.0
+            out[i] = (x + margin, y + margin)
+            x += w + margin
+            row_h = max(row_h, h)
+        return out, y + row_h + 2 * margin <= 1.0 and all(size[i, 0] * scale + 2 * margin <= 1.0 for i in order)
+
+    lo, hi = 0.0, 1.0 / size.max()
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if place(mid)[1] else (lo, mid)
+    offsets, _ = place(lo)
+    uv_layer = me.uv_layers.new(name="UVMap")
+    for f in me.polygons:
+        q = flat[f.index] * lo + np.array(offsets[f.index])
+        for k, li in enumerate(f.loop_indices):
+            uv_layer.data[li].uv = (q[k, 0], q[k, 1])
+    return dict(method="one island per face, true to scale, shelf-packed", margin=margin, scale=lo)
+
+
+def build_stairs():
+    """Four steps: a stair profile in XZ extruded along Y, narrowing towards +Y; UV one island per face."""
+    runs, rises, taper = (0.32, 0.34, 0.36, 0.38), (0.22, 0.24, 0.26, 0.28), 0.92
+    prof = [(-0.7, 0.0), (0.7, 0.0), (0.7, 1.0)]
+    x, z = 0.7, 1.0
+    for run, rise in zip(runs[::-1], rises[::-1]):
+        x -= run
+        prof.append((x, z))
+        z -= rise
+        if z > 1e-9:
+            prof.append((x, z))
+    # Faces built one by one, outward (bmesh's extrude and normal recalculation order the loops differently from
+    # run to run). The profile runs clockwise seen from -Y, so the near side's normal is -Y.
+    bm = bmesh.new()
+    near = [bm.verts.new((px, -0.5, pz - 0.5)) for px, pz in prof]
+    far = [bm.verts.new((px * taper, 0.5, pz - 0.5)) for px, pz in prof]
+    bm.faces.new(near)
+    bm.faces.new(far[::-1])
+    for i in range(len(prof)):
+        j = (i + 1) % len(prof)
+        bm.faces.new([near[j], near[i], far[i], far[j]])
+    me = _mesh_from_bmesh("stairs", bm)
+    uv = planar_islands(me)
+    return me, None, dict(
+        description="stairs: 4 steps (runs %s m, rises %s m from the bottom), the stair profile in XZ extruded 1 m "
+                    "along Y, the far side (y = +0.5) scaled by %.2f in X; %d flat faces, the two sides concave "
+                    "ngons; UV: one island per face (planar_islands)" % (list(runs), list(rises), taper,
+                                                                         len(me.polygons)),
+        profile_xz=[list(p) for p in prof], uv=uv)
+
+
+def build_mesh(kind):
+    """(render mesh, coarse level or None, info) for a mesh kind of SCENES."""
+    if kind == "suzanne":
+        return build_meshes()
+    fine, mid, info = {"torus": build_torus, "bowl": build_bowl, "rock": build_rock, "stairs": build_stairs}[kind]()
+    info["units"] = "metres, object near the origin, +Z up"
+    return fine, mid, info
 
 
 def finish_shading(me):
@@ -375,10 +665,78 @@ def fill_padding(img, inside):
     return img[idx[0], idx[1]]
 
 
-def ground_truth_albedo(mesh, n, albedo_spec):
+def _fbm(p, lo, base, octaves, gain, seed):
+    """Value noise in 3D: seeded random lattices, cubic-spline interpolated, octaves at doubling frequencies."""
+    from scipy.ndimage import map_coordinates
+    rng = np.random.default_rng(seed)
+    out = np.zeros(len(p))
+    for o in range(octaves):
+        freq = base * 2 ** o
+        q = (p - lo) * freq + 2.0
+        lattice = rng.standard_normal(tuple(int(math.ceil(e)) + 4 for e in q.max(axis=0)))
+        out += gain ** o * map_coordinates(lattice, q.T, order=3, mode="nearest")
+    return (out - out.mean()) / out.std()
+
+
+def generated_albedo(kind, pos, co, seed):
+    """Albedo (M, 3) at surface points ``pos`` (M, 3) for the meshes other than Suzanne; and its description.
+
+    ``co``: the mesh's vertices (for the bounding box); ``seed``: the scene's.
+    """
+    lo, hi = co.min(axis=0), co.max(axis=0)
+    if kind == "patches":
+        rng = np.random.default_rng(seed + 1)
+        sites = rng.uniform(lo, hi, (PATCH_COUNT, 3))
+        colours = rng.uniform(0.05, 0.80, (PATCH_COUNT, 3))
+        cell = np.argmin(((pos[:, None, :] - sites[None]) ** 2).sum(axis=2), axis=1)
+        return colours[cell], dict(
+            kind="piecewise constant: Voronoi cells of %d seeded sites in the mesh's bounding box (3D, object space), "
+                 "one uniform random colour in [0.05, 0.8]^3 each" % PATCH_COUNT,
+            sites=sites.tolist(), colours=colours.tolist())
+    if kind == "checker":
+        c0, c1 = (np.array(c) for c in CHECKER["colours"])
+        odd = (np.floor(pos / CHECKER["cell_m"]).astype(np.int64).sum(axis=1) % 2).astype(bool)
+        return np.where(odd[:, None], c1, c0), dict(
+            kind="3D checker (object space): parity of floor(x/s) + floor(y/s) + floor(z/s), s = %.2f m, two "
+                 "colours" % CHECKER["cell_m"], colours=[list(c) for c in CHECKER["colours"]])
+    if kind == "noise":
+        c = [np.array(x) for x in NOISE["colours"]]
+        f1 = _fbm(pos, lo, NOISE["base_per_m"], NOISE["octaves"], NOISE["gain"], seed + 1)
+        f2 = _fbm(pos, lo, NOISE["base_per_m"], NOISE["octaves"], NOISE["gain"], seed + 2)
+        a = np.clip(0.5 + 0.35 * f1, 0, 1)[:, None]
+        b = np.clip(2.5 * (f2 - 0.8), 0, 1)[:, None]
+        return ((1 - a) * c[0] + a * c[1]) * (1 - b) + b * c[2], dict(
+            kind="fine procedural noise: two value-noise fields f1, f2 (3D, object space; %d octaves from %.1f "
+                 "lattice cells/m, each doubling, amplitude x %.2f; normalised to mean 0, sd 1); a = clip(0.5 + "
+                 "0.35 f1), b = clip(2.5 (f2 - 0.8)); albedo = mix(mix(c0, c1, a), c2, b)"
+                 % (NOISE["octaves"], NOISE["base_per_m"], NOISE["gain"]),
+            colours=[list(x) for x in NOISE["colours"]])
+    if kind.startswith("photo:"):
+        from scipy.ndimage import map_coordinates
+        fname = kind.split(":", 1)[1]
+        photo = load_png_linear(os.path.join(ASSETS, fname)) * PHOTO_ALBEDO_SCALE
+        ph, pw = photo.shape[:2]
+        d = pos - 0.5 * (lo + hi)
+        s = np.abs(np.arctan2(d[:, 0], -d[:, 1])) / np.pi       # mirrored about the front: continuous all around
+        t = np.arccos(np.clip(d[:, 2] / np.maximum(np.linalg.norm(d, axis=1), 1e-12), -1, 1)) / np.pi
+        rgb = np.stack([map_coordinates(photo[..., ch], [t * (ph - 1), s * (pw - 1)], order=1, mode="nearest")
+                        for ch in range(3)], axis=1)
+        return rgb, dict(
+            kind="photograph, mirrored spherical projection about the bounding-box centre: s = |atan2(x-cx, "
+                 "-(y-cy))|/pi -> photo column s*(W-1), t = polar angle from +Z / pi -> photo row t*(H-1), "
+                 "bilinear; albedo = %.2f * srgb_to_linear(photo)" % PHOTO_ALBEDO_SCALE,
+            photo=fname, photo_licence=PHOTO_LICENCES[fname], photo_albedo_scale=PHOTO_ALBEDO_SCALE)
+    raise ValueError(kind)
+
+
+def ground_truth_albedo(mesh, n, albedo_spec, mesh_kind="suzanne", seed=0):
     pos, tri, count, a = rasterise_uv(mesh, n)
     inside = tri >= 0
     overlap = int((count > 1).sum())
+    if mesh_kind != "suzanne":
+        rgb = np.zeros((n, n, 3))
+        rgb[inside], info = generated_albedo(albedo_spec, pos[inside], a["co"], seed)
+        return _finish_albedo(rgb, inside, overlap, info)
     tpart = part_labels(a)
     part = np.where(inside, tpart[np.maximum(tri, 0)], -1)
     rgb = np.zeros((n, n, 3))
@@ -421,6 +779,10 @@ def ground_truth_albedo(mesh, n, albedo_spec):
                     plinth=list(PLINTH_ALBEDO_PHOTO))
     else:
         raise ValueError(albedo_spec)
+    return _finish_albedo(rgb, inside, overlap, info)
+
+
+def _finish_albedo(rgb, inside, overlap, info):
     rgb = fill_padding(rgb, inside)
     rgba = np.concatenate([rgb, inside[..., None].astype(np.float64)], axis=-1)
     if overlap:
@@ -461,6 +823,51 @@ def place_cameras(n, resolution, centre, radius, seed):
             cams.append(dict(azimuth_deg=az, elevation_deg=el, lens_mm=lens, distance=dist,
                              matrix_world=look_at(eye, target, rng.uniform(-3, 3))))
     return cams
+
+
+def camera_extrinsics(mw):
+    """core.camera's R, t (world X -> R X + t; x right, y down, z forward) of a Blender camera-to-world matrix."""
+    r_c2w = np.array(mw.to_3x3().normalized())
+    r_cv = np.diag([1.0, -1.0, -1.0]) @ r_c2w.T
+    return r_cv, -r_cv @ np.array(mw.translation)
+
+
+def jitter_camera(mw, k_core, w, h, px, co, rng):
+    """A camera about ``px`` pixels off ``mw``, as a real capture's calibration would be; and what was done.
+
+    Small rotations about the camera's x and y axes (an image shift of ``px`` x U(0.6, 1) pixels in a random
+    direction), a roll moving the image corners by up to 0.3 ``px``, and a shift of the camera centre by the
+    distance that moves the object's centre by 0.3 ``px``. ``co``: the mesh's vertices, to measure the
+    resulting displacement of their projections.
+    """
+    fx = k_core[0][0]
+    ang = rng.uniform(0.0, 2 * math.pi)
+    mag = px * rng.uniform(0.6, 1.0)
+    rx, ry = mag * math.sin(ang) / fx, mag * math.cos(ang) / fx
+    roll = rng.uniform(-0.3, 0.3) * px / (0.5 * math.hypot(w, h))
+    depth = float(np.linalg.norm(co.mean(axis=0) - np.array(mw.translation)))
+    t = rng.normal(size=3)
+    t *= 0.3 * px * depth / fx / np.linalg.norm(t)
+    user = mw @ Matrix.Translation(Vector(t)) @ Matrix.Rotation(rx, 4, "X") @ Matrix.Rotation(ry, 4, "Y") \
+        @ Matrix.Rotation(roll, 4, "Z")
+    k = np.array(k_core)
+    xy = []
+    for m in (mw, user):
+        r, tt = camera_extrinsics(m)
+        pc = co @ r.T + tt
+        q = pc @ k.T
+        xy.append(q[:, :2] / q[:, 2:])
+    d = np.linalg.norm(xy[1] - xy[0], axis=1)
+    return user, dict(rotation_x_rad=rx, rotation_y_rad=ry, roll_rad=roll, translation_camera_m=t.tolist(),
+                      note="user camera = render camera @ Translation(t) @ Rx @ Ry @ Rz (camera-local axes)",
+                      reprojection_px=dict(mean=float(d.mean()), max=float(d.max()),
+                                           over="all mesh vertices, render camera vs user camera"))
+
+
+def sun_direction(elevation_deg, azimuth_deg):
+    """Unit vector towards the sun; azimuth 0 = towards -Y (the front), positive towards +X."""
+    el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return Vector((math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)))
 
 
 def camera_intrinsics(lens, w, h):
@@ -599,12 +1006,66 @@ def configure_render(scene, spec):
     elif fmt == "JPEG":
         ims.file_format = "JPEG"
         ims.color_mode = "RGB"
-        ims.quality = 95
-        photo = dict(format="JPEG", channels="RGB", quality=95,
+        ims.quality = spec.get("jpeg_quality", 95)
+        photo = dict(format="JPEG", channels="RGB", quality=ims.quality,
                      colour="sRGB-encoded linear radiance (view transform Standard, look None, exposure 0, no dither)")
     else:
         raise ValueError(fmt)
     return photo
+
+
+def develop_info(spec, photo_info):
+    """scene.json's photo record for a scene with capture faults (see develop())."""
+    cap = spec["capture"]
+    info = dict(photo_info)
+    if spec["photo_format"] != "EXR":
+        info["colour"] = ("sRGB-encoded linear radiance x the photo's gains, clipped to [0, 1]: code = round(255 x "
+                          "srgb_oetf(clip(gain_rgb x radiance, 0, 1))), IEC 61966-2-1 piecewise curve, no dither")
+    else:
+        info["colour"] = "scene-linear Rec.709 radiance x the photo's gains (RGB; A untouched)"
+    info["developed"] = (
+        "Cycles renders float EXR (scene linear); make_fixtures.develop() multiplies it per photo by gain_rgb = "
+        "2^exposure_ev x white_balance (cameras[i].capture) and encodes it (8 bit: Blender's image writer, from "
+        "byte pixels; EXR: half float)")
+    info["faults"] = dict(
+        exposure_ev="uniform in [-%g, %g] per photo" % (cap.get("exposure_ev", 0), cap.get("exposure_ev", 0)),
+        white_balance="per channel, 1 + uniform in [-%g, %g] per photo" % (cap.get("white_balance", 0),
+                                                                          cap.get("white_balance", 0)),
+        camera_jitter_px=cap.get("jitter_px", 0),
+        camera_jitter=("the cameras in scene.blend (cameras[i].matrix_world, K/R/t) are about jitter_px pixels off the "
+                       "ones that rendered (cameras[i].render_camera); see cameras[i].jitter") if cap.get("jitter_px")
+        else None,
+        rng="numpy default_rng(seed_base + 7919), drawn per photo in order: exposure, white balance (3), jitter")
+    return info
+
+
+def develop(float_path, out_path, spec, capture, rng):
+    """Make the user's photo from a float render, with this photo's faults; return them (for scene.json)."""
+    lin = read_exr(float_path)
+    ev = float(rng.uniform(-1.0, 1.0) * capture.get("exposure_ev", 0.0))
+    wb = 1.0 + rng.uniform(-1.0, 1.0, 3) * capture.get("white_balance", 0.0)
+    gain = 2.0 ** ev * wb
+    rgb = lin[..., :3] * gain
+    if spec["photo_format"] == "EXR":
+        write_exr_rgba(out_path, np.concatenate([rgb, lin[..., 3:]], axis=-1))
+        clipped = 0.0
+    else:
+        code = np.round(255.0 * linear_to_srgb(np.clip(rgb, 0.0, 1.0)))
+        h, w = code.shape[:2]
+        img = bpy.data.images.new("_develop", w, h, alpha=False, float_buffer=False)
+        px = np.ones((h, w, 4), dtype=np.float32)
+        px[..., :3] = code[::-1] / 255.0                 # Image.pixels row 0 is the bottom
+        img.pixels.foreach_set(px.ravel())
+        img.filepath_raw = out_path
+        img.file_format = spec["photo_format"]
+        if spec["photo_format"] == "JPEG":
+            img.save(quality=spec.get("jpeg_quality", 95))
+        else:
+            img.save()
+        bpy.data.images.remove(img)
+        strip_metadata(out_path)
+        clipped = float((rgb.max(axis=-1) > 1.0).mean())
+    return dict(exposure_ev=ev, white_balance=wb.tolist(), gain_rgb=gain.tolist(), clipped_pixel_fraction=clipped)
 
 
 def strip_metadata(path):
@@ -691,12 +1152,13 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
-    fine, mid, mesh_info = build_meshes()
+    mesh_kind = spec.get("mesh", "suzanne")
+    fine, mid, mesh_info = build_mesh(mesh_kind)
     finish_shading(fine)
 
     # Ground truth texture, then the material that samples that very file.
     n = spec["texture_size"]
-    rgba, albedo_info = ground_truth_albedo(fine, n, spec["albedo"])
+    rgba, albedo_info = ground_truth_albedo(fine, n, spec["albedo"], mesh_kind, spec["seed"])
     gt_path = os.path.join(scene_dir, "albedo_gt.exr")
     write_exr_rgba(gt_path, rgba)
     gt_img = bpy.data.images.load(gt_path)
@@ -719,6 +1181,14 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     cams = place_cameras(spec["n_cameras"], spec["resolution"], centre, radius, spec["seed"])
     photo_info = configure_render(scene, spec)
     ext = PHOTO_EXT[spec["photo_format"]]
+    capture = spec.get("capture")
+    if capture:
+        # Rendered as float, then "developed" here with the per-photo faults (see develop()).
+        photo_info = develop_info(spec, photo_info)
+        ims = scene.render.image_settings
+        ims.file_format, ims.color_depth, ims.exr_codec = "OPEN_EXR", "32", "ZIP"
+        ims.color_mode = "RGBA" if scene.render.film_transparent else "RGB"
+        capture_rng = np.random.default_rng(spec["seed"] + 7919)
     view_gt = bool(spec.get("view_gt"))
     if view_gt:
         aov = scene.view_layers[0].aovs.add()
@@ -733,17 +1203,17 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
                                   "Point, rotation (0, 0, rotation_z_deg)) of the Generated texture coordinate, "
                                   "into a Background node of the given strength")
     sun = None
-    if L["kind"] == "sun":
+    if L["kind"] in ("sun", "sun_per_view"):
         ld = bpy.data.lights.new("sun", "SUN")
         ld.energy = L["sun_strength"]
         ld.angle = math.radians(L["sun_angle_deg"])
         ld.use_shadow = True
         sun = bpy.data.objects.new("sun", ld)
         scene.collection.objects.link(sun)
-        el, az = math.radians(L["sun_elevation_deg"]), math.radians(L["sun_azimuth_deg"])
-        to_sun = Vector((math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)))
-        sun.matrix_world = look_at(to_sun, (0, 0, 0))
-        light_info["direction_to_sun"] = list(to_sun)
+        if L["kind"] == "sun":
+            to_sun = sun_direction(L["sun_elevation_deg"], L["sun_azimuth_deg"])
+            sun.matrix_world = look_at(to_sun, (0, 0, 0))
+            light_info["direction_to_sun"] = list(to_sun)
         light_info["note"] = ("sun strength in W/m^2 (irradiance), angle = angular diameter; azimuth 0 = towards -Y "
                               "(the face), positive towards +X")
     worlds = {}
@@ -762,11 +1232,20 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         cobj.matrix_world = c["matrix_world"]
         scene.camera = cobj
 
+        view_light = {}
         if L["kind"] == "hdri_per_view":
             hk = i % len(L["hdri"])
             hname = L["hdri"][hk]
             strength = L["strength"][hk]
             rot = (i * L["rotation_step_deg"]) % 360.0
+        elif L["kind"] == "sun_per_view":
+            hname, strength = L["hdri"][0], L["strength"]
+            rot = (i * L["rotation_step_deg"]) % 360.0
+            el = L["sun_elevation_deg"][i % len(L["sun_elevation_deg"])]
+            az = (L["sun_azimuth_deg"] + i * L["sun_azimuth_step_deg"]) % 360.0
+            to_sun = sun_direction(el, az)
+            sun.matrix_world = look_at(to_sun, (0, 0, 0))
+            view_light = dict(sun_elevation_deg=el, sun_azimuth_deg=az, direction_to_sun=list(to_sun))
         else:
             hname, strength, rot = L["hdri"][0], L["strength"], L["rotation_deg"][0]
         key = (hname, strength, rot)
@@ -777,28 +1256,43 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         scene.cycles.seed = seed
 
         photo_name = cname + ext
-        scene.render.filepath = os.path.join(photo_dir, photo_name)
+        scene.render.filepath = os.path.join(photo_dir, photo_name if not capture else cname + ".float.exr")
         t0 = time.time()
         bpy.ops.render.render(write_still=True)
-        strip_metadata(scene.render.filepath)
+        if capture:
+            faults = develop(scene.render.filepath, os.path.join(photo_dir, photo_name), spec, capture, capture_rng)
+            os.remove(scene.render.filepath)
+        else:
+            strip_metadata(scene.render.filepath)
         render_times.append(time.time() - t0)
         log(f"{name}: {cname} rendered in {render_times[-1]:.1f} s")
         if view_gt:
             save_view_gt(scene, os.path.join(scene_dir, "gt_views", cname + ".exr"))
 
-        mw = cobj.matrix_world
-        r_c2w = np.array(mw.to_3x3().normalized())
-        cpos = np.array(mw.translation)
-        r_cv = np.diag([1.0, -1.0, -1.0]) @ r_c2w.T
         kb, kc = camera_intrinsics(c["lens_mm"], w, h)
+        extra = {}
+        if capture:
+            extra["capture"] = faults
+            if capture.get("jitter_px"):
+                # The user's camera (the one saved in scene.blend) is about a pixel off the one that rendered.
+                render_mw = cobj.matrix_world.copy()
+                cobj.matrix_world, jit = jitter_camera(render_mw, kc, w, h, capture["jitter_px"], co,
+                                                       capture_rng)
+                r_rv, t_rv = camera_extrinsics(render_mw)
+                extra["render_camera"] = dict(matrix_world=np.array(render_mw, dtype=np.float64).tolist(),
+                                              R_core=r_rv.tolist(), t_core=t_rv.tolist())
+                extra["jitter"] = jit
+        mw = cobj.matrix_world
+        cpos = np.array(mw.translation)
+        r_cv, t_cv = camera_extrinsics(mw)
         cam_records.append(dict(
             name=cname, photo="photos/" + photo_name, lens_mm=c["lens_mm"], sensor_width_mm=SENSOR_WIDTH_MM,
             sensor_fit="AUTO", shift=[0.0, 0.0], width=w, height=h,
             matrix_world=np.array(mw, dtype=np.float64).tolist(), location=cpos.tolist(),
-            K_blender=kb, K_core=kc, R_core=r_cv.tolist(), t_core=(-r_cv @ cpos).tolist(),
+            K_blender=kb, K_core=kc, R_core=r_cv.tolist(), t_core=t_cv.tolist(),
             azimuth_deg=c["azimuth_deg"], elevation_deg=c["elevation_deg"], distance=c["distance"],
-            seed=seed, lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot),
-            albedo_view=("gt_views/" + cname + ".exr") if view_gt else None))
+            seed=seed, lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot, **view_light),
+            albedo_view=("gt_views/" + cname + ".exr") if view_gt else None, **extra))
 
     # ---- The user's file: mesh + cameras + photos; strip the ground truth and the lights. ----
     if sun is not None:
@@ -814,7 +1308,8 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     for img in list(bpy.data.images):
         bpy.data.images.remove(img)
     user_mesh = fine
-    bpy.data.meshes.remove(mid)
+    if mid is not None:
+        bpy.data.meshes.remove(mid)
     mesh_record = _mesh_record(user_mesh, mesh_info, "fine")
     _attach_photos(scene, [c["photo"] for c in cam_records], scene_dir)
     blend_path = os.path.join(scene_dir, "scene.blend")
@@ -884,8 +1379,10 @@ def _generate_derived(name, spec, out_dir, reuse_base):
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
-    fine, mid, mesh_info = build_meshes()
-    coarse, dist = make_coarse(mid, fine)
+    mesh_kind = spec.get("mesh", "suzanne")
+    fine, mid, mesh_info = build_mesh(mesh_kind)
+    smooth = COARSE_SMOOTH if mesh_kind == "suzanne" else COARSE_SMOOTH_ROCK
+    coarse, dist = make_coarse(mid, fine, smooth, keep_plinth=mesh_kind == "suzanne")
     finish_shading(coarse)
     bpy.data.meshes.remove(fine)
     bpy.data.meshes.remove(mid)
@@ -908,15 +1405,17 @@ def _generate_derived(name, spec, out_dir, reuse_base):
 
     mesh_info = dict(mesh_info)
     mesh_info["description"] += (
-        "; COARSE: the user's mesh is the Smart-UV level (4x fewer faces than the render mesh) with the head "
-        "vertices smoothed (bmesh smooth_vert factor %.2f, %d times; the plinth untouched). Same UV islands as the "
-        "render mesh, so albedo_gt.exr applies unchanged" % (COARSE_SMOOTH["factor"], COARSE_SMOOTH["repeat"]))
+        "; COARSE: the user's mesh is the Smart-UV level (4x fewer faces than the render mesh) with the %s "
+        "vertices smoothed (bmesh smooth_vert factor %.2f, %d times%s). Same UV islands as the render mesh, so "
+        "albedo_gt.exr applies unchanged" % ("head" if mesh_kind == "suzanne" else "mesh's", smooth["factor"],
+                                             smooth["repeat"], "; the plinth untouched" if mesh_kind == "suzanne"
+                                             else ""))
     record = dict(b)
     record.update(
         name=name, description=_DESCRIPTIONS[name], base_scene=base,
         files=dict(blend="scene.blend", albedo_gt="albedo_gt.exr (a copy of the base scene's)",
                    photos="../%s/photos/ (shared with the base scene, referenced by relative path)" % base),
-        mesh=dict(_mesh_record(coarse, mesh_info, "coarse"), coarse_smoothing=COARSE_SMOOTH,
+        mesh=dict(_mesh_record(coarse, mesh_info, "coarse"), coarse_smoothing=smooth,
                   distance_to_render_mesh=dist, render_mesh=b["mesh"]),
     )
     record["cameras"] = [dict(c, photo="../" + base + "/" + c["photo"],
@@ -936,14 +1435,33 @@ _DESCRIPTIONS = {
                         "UV layout (the paper's fig. 5 scenario)",
     "varying_light": "Photographic albedo, Lambertian, lighting changes per view (HDRIs 'sunrise' and 'interior' "
                      "alternating, rotated by the golden angle per view), JPEG q95 photos",
+    "torus_patches": "Tilted torus (its inner ring shades itself), 14 flat Voronoi patches, Lambertian, HDRI "
+                     "'courtyard' (no sun), EXR photos with transparent film",
+    "bowl_checker": "Open bowl (the rim shadows the inside), fine 3D checker (8 cm), Principled roughness 0.4, sun "
+                    "lamp + weak HDRI 'city', 8-bit PNG: the lit light squares clip",
+    "rock_photo": "Rock (displaced icosphere with three dents), photographic albedo (coffee), Lambertian, low sun "
+                  "lamp + HDRI 'sunset', JPEG q90 with the sky as background",
+    "rock_coarse": "rock_photo's photos and cameras, but the user's mesh is the smoothed coarse level (4x fewer "
+                   "faces), same UV layout",
+    "stairs_noise": "Stairs (each step shadows the next), fine procedural noise albedo, Lambertian, sun lamp + "
+                    "HDRI 'night', EXR photos with transparent film",
+    "suzanne_exposure": "Suzanne, photographic albedo (chelsea), Lambertian, HDRI 'studio' (no sun), 8-bit PNG with "
+                        "per-photo exposure (+-0.5 EV) and white balance (+-10 % per channel)",
+    "torus_varying_sun": "Torus, photographic albedo (chelsea), Lambertian, lighting varying per photo: a sun lamp "
+                         "moving (golden-angle azimuth steps, elevation 30/60 deg) and HDRI 'sunrise' turning, EXR",
+    "bowl_jitter": "Bowl, photographic albedo (coffee), Lambertian, HDRI 'city' (a sun in the map), 8-bit PNG; "
+                   "the cameras in scene.blend are about a pixel off the ones that rendered",
+    "stairs_capture": "A real capture's faults together: stairs, flat patches, Principled roughness 0.4, sun lamp + "
+                      "HDRI 'courtyard', JPEG q85 with the background, per-photo exposure and white balance, 8-bit "
+                      "clipping, cameras about a pixel off",
 }
 
 
 def _mesh_record(me, info, which):
     return dict(info, object=MESH_OBJECT, mesh=me.name, which=which, vertices=len(me.vertices),
                 faces=len(me.polygons), triangles=len(me.loop_triangles) or None, uv_map=me.uv_layers.active.name,
-                shading="smooth, sharp edges from angle 60 deg", units="metres, object at the origin, +Z up, "
-                "Suzanne faces -Y")
+                shading="smooth, sharp edges from angle 60 deg",
+                units=info.get("units", "metres, object at the origin, +Z up, Suzanne faces -Y"))
 
 
 def _attach_photos(scene, rel_photos, scene_dir):

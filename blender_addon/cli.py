@@ -39,8 +39,9 @@ def script_argv(argv) -> list:
 
 
 #: The settings the command line takes, in the order of ``--help``.
-CLI_FIELDS = ("object_name", "camera_names", "images_dir", "lam", "mu", "max_iter", "working_res_mp",
-              "texture_size", "method", "out_dir", "save_blend", "overwrite")
+CLI_FIELDS = ("object_name", "camera_names", "images_dir", "lam", "albedo_lam", "lighting", "occlusion",
+              "mask_clipped", "mu", "max_iter", "working_res_mp", "texture_size", "method", "out_dir", "save_blend",
+              "overwrite")
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:

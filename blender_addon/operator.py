@@ -203,6 +203,10 @@ class DELIGHT_OT_run(bpy.types.Operator):
     images_dir: spec_property("images_dir")
     auto_lambda: spec_property("auto_lambda")
     lam: spec_property("lam")
+    albedo_lam: spec_property("albedo_lam")
+    lighting: spec_property("lighting")
+    occlusion: spec_property("occlusion")
+    mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
     working_res: spec_property("working_res_mp")
@@ -233,8 +237,9 @@ class DELIGHT_OT_run(bpy.types.Operator):
         return pipeline.Options(
             object_name=self.object_name or None, camera_names=names,
             images_dir=bpy.path.abspath(self.images_dir) if self.images_dir else None,
-            selected_only=self.cameras == "SELECTED", lam=None if self.auto_lambda else self.lam, mu=self.mu,
-            max_iter=self.max_iter,
+            selected_only=self.cameras == "SELECTED", lam=None if self.auto_lambda else self.lam,
+            albedo_lam=self.albedo_lam, lighting=self.lighting, occlusion=self.occlusion,
+            mask_clipped=self.mask_clipped, mu=self.mu, max_iter=self.max_iter,
             working_res_mp=self.working_res, texture_size=self.texture_size, method=self.method,
             out_dir=bpy.path.abspath(out) if out else None, overwrite=self.overwrite)
 

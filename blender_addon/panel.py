@@ -28,6 +28,10 @@ class DelightSettings(bpy.types.PropertyGroup):
     method: spec_property("method")
     auto_lambda: spec_property("auto_lambda")
     lam: spec_property("lam", clamp=True)
+    albedo_lam: spec_property("albedo_lam", clamp=True)
+    lighting: spec_property("lighting")
+    occlusion: spec_property("occlusion")
+    mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
     working_res: spec_property("working_res_mp", clamp=True)
@@ -37,8 +41,8 @@ class DelightSettings(bpy.types.PropertyGroup):
 
 
 #: The settings the panel hands to the operator as they are (same property name on both).
-_SAME = ("cameras", "images_dir", "method", "auto_lambda", "lam", "mu", "max_iter", "working_res", "texture_size",
-         "out_dir", "overwrite")
+_SAME = ("cameras", "images_dir", "method", "auto_lambda", "lam", "albedo_lam", "lighting", "occlusion",
+         "mask_clipped", "mu", "max_iter", "working_res", "texture_size", "out_dir", "overwrite")
 
 
 def operator_settings(settings) -> dict:
@@ -78,6 +82,10 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         row = sub.row()
         row.active = not s.auto_lambda
         row.prop(s, "lam")
+        sub.prop(s, "albedo_lam")
+        sub.prop(s, "lighting")
+        sub.prop(s, "occlusion")
+        sub.prop(s, "mask_clipped")
         if s.method == "image":
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")

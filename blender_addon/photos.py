@@ -26,6 +26,7 @@ import numpy as np
 
 from .core.errors import DelightError
 from .core.io.exr import read_exr
+from .core.io.photos import clipped_pixels
 
 __all__ = ["EXTENSIONS", "image_pixels", "find_photo"]
 
@@ -74,10 +75,13 @@ def _byte_image_linear(img):
     return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
-def image_pixels(img, camera_name, label=None):
+def image_pixels(img, camera_name, label=None, info=None):
     """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top.
 
     ``label`` names the photo in messages (default: the image's name and file).
+    ``info`` (a dict), if given, receives ``"float"``: whether the image is
+    stored as floats, and for 8-bit images ``"clipped"``: the (H, W) pixels
+    with a channel at or above :data:`core.io.photos.CLIP_CODE`.
 
     Raises
     ------
@@ -95,11 +99,16 @@ def image_pixels(img, camera_name, label=None):
         ch = img.channels
         is_float = img.is_float
         rgb = None
-        if is_float:
+        if info is not None:
+            info["float"] = bool(is_float)
+        if is_float or info is not None:
             flat = np.empty(w * h * ch, dtype=np.float32)
             img.pixels.foreach_get(flat)
-        else:
+        if not is_float:
             rgb = _byte_image_linear(img)
+            if info is not None:   # clipping is judged on the codes, whatever the colour space
+                codes = flat.reshape(h, w, ch)[::-1, :, :min(ch, 3)]
+                info["clipped"] = clipped_pixels(codes)
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
@@ -207,7 +216,7 @@ def _from_folder(images_dir, cam_name):
     return None
 
 
-def _load_file(path, camera_name, check_existing=True):
+def _load_file(path, camera_name, check_existing=True, info=None):
     """Read an image file through Blender, leaving ``bpy.data.images`` as it was.
 
     ``check_existing=False`` for one frame of a sequence, whose datablock holds another frame.
@@ -220,14 +229,16 @@ def _load_file(path, camera_name, check_existing=True):
     except RuntimeError as exc:
         raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
     try:
-        return image_pixels(img, camera_name, label=path)
+        return image_pixels(img, camera_name, label=path, info=info)
     finally:
         if img not in before:
             bpy.data.images.remove(img)
 
 
-def find_photo(scene, cam_obj, images_dir=None):
+def find_photo(scene, cam_obj, images_dir=None, info=None):
     """The camera's photo as ``(H, W, 3)`` float32 linear, and where it came from.
+
+    ``info`` (a dict), if given, receives ``"float"`` and ``"clipped"`` (see :func:`image_pixels`).
 
     Returns
     -------
@@ -243,12 +254,13 @@ def find_photo(scene, cam_obj, images_dir=None):
     """
     img = _from_background(scene, cam_obj)
     if isinstance(img, str):
-        return _load_file(img, cam_obj.name, check_existing=False), f"background image sequence frame {img}"
+        return (_load_file(img, cam_obj.name, check_existing=False, info=info),
+                f"background image sequence frame {img}")
     if img is not None:
-        return image_pixels(img, cam_obj.name), f"background image {img.name!r}"
+        return image_pixels(img, cam_obj.name, info=info), f"background image {img.name!r}"
     img = _from_image_plane(scene, cam_obj)
     if img is not None:
-        return image_pixels(img, cam_obj.name), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
+        return image_pixels(img, cam_obj.name, info=info), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
                                                  f"(image {img.name!r})"
     looked = ["its background images", f"an image plane object {' or '.join(map(repr, _plane_names(cam_obj.name)))}"]
     if images_dir:
@@ -259,7 +271,7 @@ def find_photo(scene, cam_obj, images_dir=None):
             raise DelightError(f"images folder {folder} does not exist")
         path = _from_folder(folder, cam_obj.name)
         if path is not None:
-            return _load_file(path, cam_obj.name), path
+            return _load_file(path, cam_obj.name, info=info), path
         looked.append(f"files named {' or '.join(map(repr, _stems(cam_obj.name)))} + an image extension in {folder}")
     else:
         looked.append("an images folder (none given)")

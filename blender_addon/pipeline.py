@@ -191,6 +191,8 @@ def _report_json(prepared, computed, files, times):
         "method": opt.method,
         "parameters": {"lambda": computed.info.get("lam", opt.lam), "lambda_auto": opt.lam is None,
                        "lighting_variation": computed.info.get("lighting_variation"),
+                       "albedo_lambda": opt.albedo_lam, "lighting": computed.info.get("lighting_mode", opt.lighting),
+                       "occlusion": opt.occlusion, "mask_clipped": opt.mask_clipped,
                        "mu": opt.mu, "max_iter": opt.max_iter,
                        "working_res_mp": opt.working_res_mp, "texture_size": opt.texture_size,
                        "images_dir": opt.images_dir},

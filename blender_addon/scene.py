@@ -271,9 +271,13 @@ def gather(context_or_scene, object_name=None, camera_names=None, images_dir=Non
 
 
 def _view(scene, depsgraph, cam, images_dir, working_res_mp):
-    photo, source = _photos.find_photo(scene, cam, images_dir)
+    info = {}
+    photo, source = _photos.find_photo(scene, cam, images_dir, info)
     h, w = photo.shape[:2]
     small, scale = downscale(photo, working_res_mp)
+    clipped = info.get("clipped")
+    if clipped is not None and scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
+        clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
     camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
                             scale=scale)
-    return ViewInput(name=cam.name, camera=camera, photo=small, source=source)
+    return ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, make_dataclass
 
 from .errors import DelightError
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
+from .solve.lighting import ALBEDO_LAMBDA
 from .solve.solver import SolverParams
 
 __all__ = ["Option", "SPEC", "OPTIONS", "RUN_FIELDS", "SOLVER_FIELDS", "Options", "check", "validate",
@@ -53,6 +54,8 @@ class Option:
         The command-line option; no flag: not on the command line.
     auto : str, optional
         The value may also be "auto" (None); this says what auto does.
+    none : str, optional
+        The value may also be "none" (None); this says what none does.
     shown : object, optional
         What a UI field starts at when ``default`` is None.
     noun : str, optional
@@ -74,6 +77,7 @@ class Option:
     flag: str | None = None
     metavar: str | None = None
     auto: str | None = None
+    none: str | None = None
     shown: object = None
     noun: str | None = None
 
@@ -122,6 +126,22 @@ SPEC = (
     Option("lam", "float", None, "Lambda (smoothness)", "Weight of the smoothness (total variation) term: "
            "larger removes more shading, and more detail with it", min=0.0, soft_min=0.0, soft_max=100.0,
            flag="--lambda", metavar="L|auto", auto=_AUTO_LAMBDA, shown=_SOLVER.lam, noun="lambda"),
+    Option("albedo_lam", "float", ALBEDO_LAMBDA, "Albedo lambda", "Smoothness weight of the second stage, "
+           "which solves the albedo again under the lighting of the first; smaller keeps finer detail",
+           min=0.0, soft_min=0.0, soft_max=10.0, flag="--albedo-lambda", metavar="L|none",
+           none="one stage, as the paper", noun="albedo lambda"),
+    Option("lighting", "choice", "auto", "Lighting", "How the lighting of the photos is modelled",
+           choices=(("auto", "Auto", "Coupled when the photos share one light, per photo when it moves "
+                                     "(measured on the photos)"),
+                    ("coupled", "Coupled", "One lighting per photo, held to one shared world lighting"),
+                    ("shared", "Shared", "One world lighting for all photos, times an exposure and white "
+                                         "balance gain per photo"),
+                    ("per_view", "Per photo", "A free lighting per photo, as the paper")),
+           flag="--lighting"),
+    Option("occlusion", "bool", True, "Occlusion", "Shade with the light each point really receives "
+           "(self-shadowing by the mesh), not the paper's shading by the normal alone", flag="--occlusion"),
+    Option("mask_clipped", "bool", False, "Leave out clipped pixels", "Leave the pixels at an 8-bit photo's "
+           "ceiling out of the solve", flag="--mask-clipped"),
     Option("mu", "float", _SOLVER.mu, "Mu (consistency)", "Weight of the cross-view consistency term, for "
            "the Image method", min=0.0, soft_min=0.0, soft_max=100.0, flag="--mu", metavar="M", noun="mu"),
     Option("max_iter", "int", _SOLVER.max_iter, "Iterations", "Most solver iterations at the full size "
@@ -158,8 +178,9 @@ SPEC = (
 OPTIONS = {o.name: o for o in SPEC}
 
 #: The fields of :class:`Options`, in order: what a run needs.
-RUN_FIELDS = ("object_name", "camera_names", "images_dir", "selected_only", "lam", "mu", "max_iter",
-              "working_res_mp", "texture_size", "method", "out_dir", "save_blend", "overwrite")
+RUN_FIELDS = ("object_name", "camera_names", "images_dir", "selected_only", "lam", "albedo_lam", "lighting",
+              "occlusion", "mask_clipped", "mu", "max_iter", "working_res_mp", "texture_size", "method", "out_dir",
+              "save_blend", "overwrite")
 
 #: The solver's settings that ``python -m core solve`` takes.
 SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton")
@@ -182,7 +203,7 @@ def requirement(option: Option) -> str:
         text += f" greater than {_number(o.min)}" if o.min_open else f" of at least {_number(o.min)}"
     elif o.max is not None:
         text += f" of at most {_number(o.max)}"
-    return text + (" or auto" if o.auto else "")
+    return text + (" or auto" if o.auto else "") + (" or none" if o.none else "")
 
 
 def check(name: str, value):
@@ -192,7 +213,7 @@ def check(name: str, value):
     integer between 8 and 16384, got 3".
     """
     o = OPTIONS[name]
-    if value is None and o.default is None:       # chosen for you (auto lambda, the active object, ...)
+    if value is None and (o.default is None or o.none):   # chosen for you (auto lambda, ...), or "none"
         return value
     if o.kind == "choice":
         if value not in o.values:
@@ -221,7 +242,7 @@ def _parser(option: Option):
     kind = int if option.kind == "int" else float
 
     def parse(text):
-        if option.auto and text.strip().lower() == "auto":
+        if (option.auto and text.strip().lower() == "auto") or (option.none and text.strip().lower() == "none"):
             return None
         try:
             return kind(text)
@@ -236,6 +257,8 @@ def cli_help(option: Option) -> str:
     o, text = option, option.help
     if o.kind == "choice":
         text += ": " + "; ".join(f"{v}: {h[0].lower()}{h[1:]}" for v, _, h in o.choices)
+    if o.none:
+        text += f"; none: {o.none}"
     if o.auto:
         text += f" (default auto: {o.auto})"
     elif o.kind != "bool" and o.default is not None:
@@ -249,7 +272,8 @@ def add_arguments(parser: argparse.ArgumentParser, names) -> None:
         o = OPTIONS[name]
         kw = dict(dest=o.name, default=o.default, help=cli_help(o))
         if o.kind == "bool":
-            kw["action"] = "store_true"
+            # A setting that is on by default needs its --no- form to be turned off.
+            kw["action"] = argparse.BooleanOptionalAction if o.default else "store_true"
         elif o.kind == "choice":
             kw["choices"] = o.values
         else:
@@ -272,6 +296,9 @@ def _options_class():
         kind = types[o.kind] + (" or None" if o.default is None else "")
         lines += [f"{name} : {kind}", f"    {o.label}: {o.help}."]
         fields_.append((name, kind.replace(" or None", " | None"), field(default=o.default)))
+    lines += ["solver : dict or None", "    Further :class:`core.solve.solver.SolverParams` fields, for experts and "
+              "benchmarks (the settings above take precedence)."]
+    fields_.append(("solver", "dict | None", field(default=None)))
 
     def validate_self(self):
         """Raise :class:`DelightError` for a bad value (see :func:`check`)."""

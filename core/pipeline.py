@@ -45,6 +45,14 @@ def _layout(mesh, n):
     return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)
 
 
+def _unclipped(mask, clipped):
+    """The mask without the clipped pixels, unless that leaves nothing (or nothing is known)."""
+    if clipped is None:
+        return mask
+    keep = mask & ~clipped
+    return keep if keep.any() else mask
+
+
 def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None,
             cancel=None) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
@@ -63,6 +71,9 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     n = int(opt.texture_size)
     photos = [v.photo for v in inputs.views]
     masks = [b.mask for b in bakes]
+    solve_masks = masks
+    if opt.mask_clipped and opt.method != "project":
+        solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
     solve_progress = stage_progress(progress, "solve")
@@ -75,20 +86,34 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     if opt.method == "image":
         from .geometry.correspondences import find_correspondences
         correspondences = find_correspondences([v.camera for v in inputs.views], [b.position for b in bakes],
-                                               masks, [b.normal for b in bakes])
+                                               solve_masks, [b.normal for b in bakes])
         check_cancel(cancel)
-    problem = Problem(images=photos, masks=masks, normals=[b.normal for b in bakes],
+    transfer = None
+    if opt.occlusion and opt.method != "project":
+        from .geometry.transfer import pixel_transfer
+        solve_progress(0.0, "occlusion")
+        transfer = pixel_transfer(inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes],
+                                  [b.position for b in bakes], weights)
+        check_cancel(cancel)
+    problem = Problem(images=photos, masks=solve_masks, normals=[b.normal for b in bakes],
                       correspondences=correspondences, uv=uvs,
                       texture=layout if opt.method == "texture" else None,
-                      view_weight=weights, names=[v.name for v in inputs.views])
+                      view_weight=weights, names=[v.name for v in inputs.views], transfer=transfer)
     result = None
-    lam, variation = opt.lam, None
+    lam, variation, lighting = opt.lam, None, opt.lighting
     if opt.method != "project":
-        if lam is None:
-            from .solve.lambda_choice import auto_lambda, describe_lambda
-            lam, variation = auto_lambda(problem)
-            solve_progress(0.0, describe_lambda(lam, variation, auto=True))
-        params = SolverParams(domain=opt.method, lam=float(lam), mu=float(opt.mu), max_iter=int(opt.max_iter))
+        from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
+        from .solve.lighting import choose_lighting
+        if lam is None or lighting == "auto":
+            auto, variation = auto_lambda(problem)
+            if lam is None:
+                # With two stages the lighting stage wants a strong TV whatever the light does.
+                lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
+                solve_progress(0.0, describe_lambda(lam, variation, auto=True))
+            if lighting == "auto":
+                lighting = choose_lighting(variation)
+        params = SolverParams(**dict(opt.solver or {}, domain=opt.method, lam=float(lam), mu=float(opt.mu),
+                                     max_iter=int(opt.max_iter), albedo_lam=opt.albedo_lam, lighting=lighting))
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
     check_cancel(cancel)
@@ -103,7 +128,7 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
-        fused = fuse_views(maps, masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
+        fused = fuse_views(maps, problem.masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
         albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
     times["fuse"] = time.perf_counter() - t
@@ -113,4 +138,6 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
                     sigma=None if result is None else np.asarray(result.sigma),
                     energy=[] if result is None else [float(e) for e in result.energy],
                     iterations=0 if result is None else int(result.iterations),
-                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation))
+                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation,
+                                                        albedo_lam=opt.albedo_lam, lighting_mode=lighting,
+                                                        occlusion=bool(opt.occlusion)))

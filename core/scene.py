@@ -43,6 +43,9 @@ class ViewInput:
     camera: object  # core.geometry.camera.Camera on the photo's (possibly downscaled) pixel grid
     photo: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
     source: str
+    # (H, W) bool at the working resolution: pixels that touch an 8-bit photo's ceiling in some channel
+    # (core.io.photos.clipped_pixels); None for float photos, which do not clip.
+    clipped: np.ndarray | None = None
 
 
 @dataclass

@@ -56,8 +56,8 @@ def test_every_setting_has_words_and_a_sane_range():
 def test_options_is_built_from_the_spec():
     assert pipeline.Options is Options
     fields = dataclasses.fields(Options)
-    assert tuple(f.name for f in fields) == RUN_FIELDS
-    assert {f.name: f.default for f in fields} == {n: OPTIONS[n].default for n in RUN_FIELDS}
+    assert tuple(f.name for f in fields) == RUN_FIELDS + ("solver",)   # solver: expert SolverParams fields
+    assert {f.name: f.default for f in fields[:-1]} == {n: OPTIONS[n].default for n in RUN_FIELDS}
     assert pipeline.METHODS == ("texture", "image", "project")
     Options().validate()
     with pytest.raises(DelightError, match="texture size must be"):
@@ -104,7 +104,9 @@ def test_the_command_lines_take_their_defaults_choices_and_help_from_the_spec(wh
         parser, names = core_parser()._subparsers._group_actions[0].choices["solve"], SOLVER_FIELDS
     for name, action in _parser_actions(parser, names).items():
         o = OPTIONS[name]
-        assert action.option_strings == [o.flag], name
+        # A setting on by default also has its --no- form.
+        assert action.option_strings == [o.flag] + ([f"--no-{o.flag[2:]}"] if o.kind == "bool" and o.default
+                                                    else []), name
         assert action.default == o.default, name
         assert action.help.startswith(o.help), name
         if o.kind == "choice":

@@ -4,7 +4,11 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["srgb_to_linear", "linear_to_srgb", "downscale"]
+__all__ = ["srgb_to_linear", "linear_to_srgb", "downscale", "clipped_pixels", "CLIP_CODE"]
+
+#: 8-bit code from which a channel counts as clipped: JPEG ringing spreads a saturated area's 255 over
+#: nearby codes, and a pixel whose true value lay beyond the ceiling says nothing about its albedo.
+CLIP_CODE = 250
 
 
 def srgb_to_linear(values):
@@ -53,3 +57,12 @@ def downscale(photo, max_mp):
     cols = ax @ rows.transpose(1, 0, 2).reshape(w, h2 * c)
     out = cols.reshape(w2, h2, c).transpose(1, 0, 2)
     return np.ascontiguousarray(out, dtype=np.float32), (w2 / w, h2 / h)
+
+
+def clipped_pixels(codes, code: int = CLIP_CODE) -> np.ndarray:
+    """Pixels of an 8-bit photo at or above ``code`` in some channel, ``(H, W)`` bool.
+
+    ``codes`` are the photo's 8-bit codes / 255 (what ``Image.pixels`` holds for an 8-bit image), so
+    that clipping is judged before any colour-space decoding.
+    """
+    return np.any(np.asarray(codes) >= (code - 0.5) / 255.0, axis=-1)

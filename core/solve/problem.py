@@ -55,6 +55,11 @@ class Problem:
         normal and the viewing ray; grazing views count less. Default 1.
     names : list of str, optional
         View names, used in messages and output file names.
+    transfer : list of (H, W, K) arrays, optional
+        Per pixel, the SH transfer that replaces ``nu(normal)`` in the shading
+        ``sigma . nu`` (occlusion-aware, :mod:`core.geometry.transfer`); K is
+        9 (the paper's order 2), 16 or 25 (orders 3 and 4).
+        Default: the paper's ``nu`` of the normals.
     """
 
     images: list
@@ -65,6 +70,7 @@ class Problem:
     texture: TextureLayout | None = None
     view_weight: list | None = None
     names: list = field(default_factory=list)
+    transfer: list | None = None
 
     def __post_init__(self):
         m = len(self.images)
@@ -119,10 +125,24 @@ class Problem:
                 wm = w[mask]
                 if not np.isfinite(wm).all() or wm.min() < 0:
                     _fail(f"{v}: view_weight inside the mask must be finite and >= 0")
+        if self.transfer is not None:
+            self._check_transfer()
         if self.correspondences is not None:
             self._check_correspondences()
         if self.texture is not None and self.uv is None:
             _fail("problem: a texture layout needs per-pixel uv")
+
+    def _check_transfer(self):
+        if len(self.transfer) != self.n_views:
+            _fail(f"problem: {len(self.transfer)} transfer maps for {self.n_views} images")
+        self.transfer = [np.asarray(t, dtype=np.float32) for t in self.transfer]
+        for i, (t, mask) in enumerate(zip(self.transfer, self.masks)):
+            if t.shape[:2] != mask.shape or t.ndim != 3 or t.shape[2] not in (9, 16, 25) \
+                    or t.shape[2] != self.transfer[0].shape[2]:
+                _fail(f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
+                      "(or 16 or 25 coefficients, the same in every view)")
+            if not np.isfinite(t[mask]).all():
+                _fail(f"view {i} ({self.names[i]}): transfer inside the mask is NaN or infinite")
 
     def _check_correspondences(self):
         c = self.correspondences

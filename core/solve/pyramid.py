@@ -90,7 +90,7 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
     return Problem(half(problem.images), sub, half(problem.normals),
                    correspondences=_coarsen_correspondences(problem.correspondences, problem.masks, sub),
                    uv=half(problem.uv), texture=None if layout is None else _coarsen_layout(layout),
-                   view_weight=half(problem.view_weight), names=list(problem.names))
+                   view_weight=half(problem.view_weight), names=list(problem.names), transfer=half(problem.transfer))
 
 
 def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -135,7 +135,8 @@ def with_texture_size(problem: Problem, size: int) -> Problem:
     while layout.size > size:
         layout = _coarsen_layout(layout)
     return Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences,
-                   uv=problem.uv, texture=layout, view_weight=problem.view_weight, names=list(problem.names))
+                   uv=problem.uv, texture=layout, view_weight=problem.view_weight, names=list(problem.names),
+                   transfer=problem.transfer)
 
 
 def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayout):

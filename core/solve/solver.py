@@ -55,7 +55,7 @@ from .multigrid import Hierarchy, block_grid
 from .discretization import Discretization, image_domain, texture_domain
 from .problem import Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import DIFFUSE, unpack_products
+from .sh import diffuse, unpack_products
 from .spmv import matvec_into
 
 __all__ = ["SolverParams", "Result", "solve", "energy"]
@@ -112,6 +112,24 @@ class SolverParams:
         Texture domain: when the texture has more seen texels than this many
         per photo pixel on the mesh, solve on a texture halved until it has
         not, and sample the result bilinearly back up (0 never does).
+    lighting : {"per_view", "shared", "coupled", "fixed"}
+        The sigma-step's model (:mod:`core.solve.lighting`): 9 free SH
+        coefficients per view and channel (the paper); one world lighting
+        shared by all views, times a gain per view and channel (exposure and
+        white balance); per view, held to such a shared lighting by a
+        quadratic prior of weight ``coupling``; or no sigma-step (the
+        lighting given).
+    coupling : float
+        Weight of the prior of ``lighting="coupled"``, in units of the data
+        term (:class:`core.solve.lighting.Coupling`).
+    albedo_lam : float or None
+        None: one stage, as the paper. A number: two stages
+        (:func:`core.solve.lighting.solve_two_stage`): the lighting is
+        estimated with ``lam``, then the albedo solved again with that
+        lighting fixed and this TV weight.
+    light_size : int
+        Two stages: the largest texture the lighting stage solves on (0: the
+        problem's own).
     """
 
     domain: str = "texture"
@@ -132,6 +150,10 @@ class SolverParams:
     max_texels_per_pixel: float = 2.0
     extrapolate: float = 1.0
     preconditioner: str = "auto"
+    lighting: str = "per_view"
+    coupling: float = 10.0
+    albedo_lam: float | None = None
+    light_size: int = 128
 
     def resolved(self) -> "SolverParams":
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -163,6 +185,15 @@ class SolverParams:
             raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
             raise ValueError("solver: levels and coarse_iter must be >= 1")
+        if self.lighting not in ("per_view", "shared", "coupled", "fixed"):
+            raise ValueError("solver: lighting must be 'per_view', 'shared', 'coupled' or 'fixed', "
+                             f"got {self.lighting!r}")
+        if not np.isfinite(self.coupling) or self.coupling < 0:
+            raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
+        if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
+            raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
+        if self.light_size < 0:
+            raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
 
 
 @dataclass
@@ -246,11 +277,17 @@ class _Channel:
         self.ft = np.dtype(params.precision).type
         self.values = np.ascontiguousarray(d.values[:, c])
         self.rho = np.ascontiguousarray(d.rho0[:, c] if rho0 is None else rho0).astype(self.ft)
-        self.sigma = np.tile(DIFFUSE, (d.n_views, 1)) if sigma0 is None else np.array(sigma0, dtype=np.float64)
+        k = d.nu.shape[1]  # 9, or more with an order-3/4 transfer
+        self.sigma = np.tile(diffuse(k), (d.n_views, 1)) if sigma0 is None else np.array(sigma0, dtype=np.float64)
         self.delta = params.delta
         self.cg_iter = params.cg_iter
         self.gauss_newton = params.gauss_newton
         self.extrapolate = params.extrapolate
+        self.lighting = params.lighting
+        self.coupling = None
+        if params.lighting == "coupled":
+            from .lighting import Coupling
+            self.coupling = Coupling(d, c, params.coupling, self.sigma)
         self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
@@ -264,10 +301,13 @@ class _Channel:
     def _set_sigma(self, sigma, shade):
         self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
 
-    def energy(self, rho=None, obs_shade=None):
-        return _channel_energy(self.d, self.rho if rho is None else rho,
-                               self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s_ft,
-                               self.delta, rows=self._Bx)
+    def energy(self, rho=None, obs_shade=None, sigma=None, world=None):
+        e = _channel_energy(self.d, self.rho if rho is None else rho,
+                            self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s_ft,
+                            self.delta, rows=self._Bx)
+        if self.coupling is not None:  # the lighting prior is part of the energy
+            e += self.coupling.penalty(self.sigma if sigma is None else sigma, world)
+        return e
 
     def data_weights(self, rho_o):
         """beta * the majorant's curvature at the current residuals."""
@@ -311,31 +351,55 @@ class _Channel:
         if e <= self.e:
             self.rho, self.e = rho, e
 
-    def sigma_step(self):
+    def normal_equations(self):
+        """Per view, the sigma-step's 9x9 matrix and right-hand side at the current majorant: ``(m, 9, 9), (m, 9)``."""
         d = self.d
         rho_o = d.gather(self.rho)
         w = self.data_weights(rho_o)
         npix = d.nu.shape[0]
         g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
         h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
-        sigma = self.sigma.copy()
+        k = d.nu.shape[1]
+        Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            # float32 products (BLAS); the energy check below guards the result.
-            M = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
-            b = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
+            # float32 products (BLAS); the energy check in sigma_step guards the result.
+            Ms[v] = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
+            bs[v] = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
+        return Ms, bs
+
+    def sigma_step(self):
+        if self.lighting == "fixed":
+            return
+        d = self.d
+        Ms, bs = self.normal_equations()
+        world = None
+        if self.lighting == "shared":
+            from .lighting import shared_lighting_step
+            sigma = shared_lighting_step(Ms, bs, self.sigma)
+        elif self.lighting == "coupled":
+            sigma, world = self.coupling.step(Ms, bs, self.sigma)
+        else:
+            sigma = self._per_view_sigma(Ms, bs)
+        shade = _shading(d, sigma, self.ft)
+        e = self.energy(obs_shade=shade[d.obs_pixel], sigma=sigma, world=world)
+        if e <= self.e:
+            self._set_sigma(sigma, shade)
+            if world is not None:
+                self.coupling.world = world
+            self.e = e
+
+    def _per_view_sigma(self, Ms, bs):
+        sigma = self.sigma.copy()
+        for v, (M, b) in enumerate(zip(Ms, bs)):
             if v == 0:
                 # Pin the scale: the constant term of view 0 stays fixed.
-                free = np.array([0, 1, 2, 4, 5, 6, 7, 8])
+                free = np.delete(np.arange(M.shape[0]), 3)
                 rhs = b[free] - M[free, 3] * sigma[0, 3]
                 sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
             else:
                 sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
-        shade = _shading(d, sigma, self.ft)
-        e = self.energy(obs_shade=shade[d.obs_pixel])
-        if e <= self.e:
-            self._set_sigma(sigma, shade)
-            self.e = e
+        return sigma
 
     def step(self):
         before = self.rho
@@ -373,6 +437,9 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params = params or SolverParams()
     params.check()
     params = params.resolved()
+    if params.albedo_lam is not None:
+        from .lighting import solve_two_stage
+        return solve_two_stage(problem, params, progress, cancel)
     t0 = time.perf_counter()
 
     def poll():
@@ -580,6 +647,8 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
     keeps the MM guarantee: a step is taken only if it lowers the energy.
     """
     d = ch.d
+    if d.nu.shape[1] != 9:
+        raise ValueError("solver: the Gauss-Newton step needs the 9-coefficient shading model")
     n = d.n_unknowns
     rho = ch.rho.astype(np.float64)
     matvec, precondition, rhs, free = _joint_system(ch, rho)

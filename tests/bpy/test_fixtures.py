@@ -221,7 +221,13 @@ def test_per_view_ground_truth_is_the_texture_through_the_uv_map(small_scene, mf
     assert agree / total > 0.9, f"only {agree}/{total} projected vertices see their own texel's albedo"
 
 
-SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light")
+SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light", "torus_patches", "bowl_checker",
+          "rock_photo", "rock_coarse", "stairs_noise", "suzanne_exposure", "torus_varying_sun", "bowl_jitter",
+          "stairs_capture")
+
+
+def test_every_scene_is_checked(mf):
+    assert set(SCENES) == set(mf.SCENES) and len(SCENES) >= 12
 
 
 @needs_fixture_blend
@@ -252,8 +258,14 @@ def test_checked_in_fixture_is_complete(name, mf):
     assert [c.name for c in cams] == [c["name"] for c in record["cameras"]]
     assert 8 <= len(cams) <= 16
     assert len(bpy.data.lights) == 0 and len(bpy.data.materials) == 0 and scene.world is None
-    for cam in cams:
+    for cam, rec in zip(cams, record["cameras"]):
         img = cam.data.background_images[0].image
         assert os.path.isfile(bpy.path.abspath(img.filepath)) and tuple(img.size) == (w, h)
+        # The saved camera is the one scene.json describes; where the capture jittered it, about a pixel off
+        # the camera that rendered the photo.
+        np.testing.assert_allclose(np.array(cam.matrix_world), rec["matrix_world"], atol=1e-5)
+        if "render_camera" in rec:
+            assert 0.3 < rec["jitter"]["reprojection_px"]["mean"] < 2.0
+            assert not np.allclose(rec["render_camera"]["matrix_world"], rec["matrix_world"], atol=1e-5)
     me = scene.objects[record["mesh"]["object"]].data
     assert len(me.vertices) == record["mesh"]["vertices"] and me.uv_layers.active.name == "UVMap"

@@ -194,7 +194,7 @@ def test_progress_bar_follows_a_run_and_leaves_the_status_bar_after_it(tmp_path)
         bars.append(progress_bar())
     texts = [t for _, t in bars]
     assert any(t.startswith("bake: baking view1_cam") for t in texts)
-    assert "solve: iteration 2/3" in [t.split(" —")[0] for t in texts]
+    assert "solve: albedo: iteration 2/3" in [t.split(" —")[0] for t in texts]
     assert not any("energy" in t for t in texts)
     factors = [f for f, _ in bars]
     assert np.all(np.diff(factors) > -1e-9) and factors[-1] == pytest.approx(0.95)

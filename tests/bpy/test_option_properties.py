@@ -24,7 +24,8 @@ pytestmark = pytest.mark.bpy
 OPERATOR = {"object_name": "object_name", "cameras": "cameras", "camera_collection": "camera_collection",
             "images_dir": "images_dir", "auto_lambda": "auto_lambda", "lam": "lam", "mu": "mu",
             "max_iter": "max_iter", "working_res": "working_res_mp", "texture_size": "texture_size",
-            "method": "method", "out_dir": "out_dir", "overwrite": "overwrite"}
+            "method": "method", "out_dir": "out_dir", "overwrite": "overwrite", "albedo_lam": "albedo_lam",
+            "lighting": "lighting", "occlusion": "occlusion", "mask_clipped": "mask_clipped"}
 
 #: Bad values: operator keywords, the command line's arguments, and the one message both give.
 BAD = [

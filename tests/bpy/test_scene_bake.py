@@ -160,6 +160,13 @@ def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
     np.testing.assert_allclose(gather(scene).views[0].photo, codes / 255.0, atol=2e-5)
     img.colorspace_settings.name = "sRGB"
     np.testing.assert_allclose(photo[0, 0], [1.0, 0.0, 0.0030353], rtol=1e-4, atol=1e-5)
+    # An 8-bit photo knows where it clipped: the two pixels with a channel at 250 or more.
+    assert gather(scene).views[0].clipped.tolist() == np.any(codes >= 250, axis=2).tolist()
+
+
+def test_float_photo_has_no_clipped_pixels(tmp_path):
+    s = build_scene(str(tmp_path), n_cameras=1, size=(16, 12), kind="exr")
+    assert gather(s.scene).views[0].clipped is None
 
 
 def test_photo_sources_background_plane_and_folder(tmp_path):

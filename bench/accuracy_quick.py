@@ -1,0 +1,249 @@
+"""Quick accuracy harness: texture rows only, in one process, on baked scenes cached on disk.
+
+Run by hand (not a test)::
+
+    .venv/bin/python bench/accuracy_quick.py [--only lambert_sky photo_sun] [--texture-size 256]
+        [--set lighting=shared --set lam=2] [--no-ceiling] [--json out.json]
+
+The first run of a fixture reads its .blend through bpy and bakes it exactly as the add-on does
+(:func:`blender_addon.pipeline.prepare`); the gathered photos, cameras and bakes are pickled under
+``build/bench/quick/`` and reused while the fixture's files are unchanged. Then, in this process:
+
+* ``project``: the photos fused onto the texture (no delighting), the baseline;
+* ``ours``: :func:`core.pipeline.compute` with the default options, or with ``--set`` overrides
+  (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.solver.SolverParams`);
+* ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
+  the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
+  default), then the albedo solved again with that lighting held fixed and the albedo stage's TV weight
+  (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
+  ``ceiling_divide`` the photos divided by the fitted shading, without TV;
+* ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
+  observations after one scale per channel (the albedo's scale is free).
+
+RMSE is ``core.evaluate.metrics.scaled_rmse`` over the seen texels inside the UV islands, truth in [0, 1],
+as in ``bench/accuracy.py``; a truth larger than ``--texture-size`` is box-averaged down.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import datetime
+import hashlib
+import json
+import os
+import pickle
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from bench.accuracy import fixtures  # noqa: E402
+from bench.headless import ROOT, commit, machine  # noqa: E402
+from core.evaluate.metrics import scaled_rmse  # noqa: E402
+from core.io.exr import read_exr  # noqa: E402
+
+CACHE = os.path.join(ROOT, "build", "bench", "quick")
+_CACHE_VERSION = 2  # raise when what prepare() returns changes
+
+
+def _fingerprint(fixture_dir):
+    """Hash of the names, sizes and times of the fixture's files (photos included)."""
+    h = hashlib.sha1()
+    for base, _, files in sorted(os.walk(fixture_dir)):
+        for f in sorted(files):
+            st = os.stat(os.path.join(base, f))
+            h.update(f"{base}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
+    return h.hexdigest()[:16]
+
+
+def _bake_with_bpy(fixture_dir, object_name):
+    import bpy
+
+    from blender_addon.pipeline import Options, prepare
+
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"), load_ui=False)
+    opt = Options(object_name=object_name, out_dir=os.path.join(CACHE, "unused"), overwrite=True)
+    return prepare(bpy.context.scene, opt)
+
+
+def load_case(name, fixture_dir):
+    """``(record, inputs, bakes, photo_depths)`` of a fixture, baked once and cached."""
+    with open(os.path.join(fixture_dir, "scene.json")) as fh:
+        record = json.load(fh)
+    path = os.path.join(CACHE, f"{name}-{_fingerprint(fixture_dir)}-{_CACHE_VERSION}.pkl")
+    if os.path.exists(path):
+        with open(path, "rb") as fh:
+            inputs, bakes = pickle.load(fh)
+    else:
+        prepared = _bake_with_bpy(fixture_dir, record["mesh"]["object"])
+        inputs, bakes = prepared.inputs, prepared.bakes
+        os.makedirs(CACHE, exist_ok=True)
+        with open(path, "wb") as fh:
+            pickle.dump((inputs, bakes), fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return record, inputs, bakes
+
+
+def truth(fixture_dir, record, size):
+    """The true albedo (RGB, clipped to [0, 1]) and its inside mask at ``size``, box-averaged if larger."""
+    gt = read_exr(os.path.join(fixture_dir, record["albedo_gt"]["file"]))[0]
+    n = gt.shape[0]
+    if n != size:
+        if n % size:
+            raise SystemExit(f"error: truth size {n} is not a multiple of {size}")
+        k = n // size
+        gt = gt.reshape(size, k, size, k, -1).mean(axis=(1, 3))
+    return np.clip(gt[..., :3], 0, 1), gt[..., 3] > 0.5
+
+
+def parse_sets(items):
+    out = {}
+    for item in items or []:
+        key, _, val = item.partition("=")
+        try:
+            out[key] = ast.literal_eval(val)
+        except (ValueError, SyntaxError):
+            out[key] = val
+    return out
+
+
+def run_ours(inputs, bakes, size, sets):
+    from core.pipeline import Options, compute
+
+    import dataclasses
+    sets = dict(sets)
+    fields = {f.name for f in dataclasses.fields(Options)} - {"solver"}
+    opt_keys = {k: sets.pop(k) for k in list(sets) if k in fields}
+    opt = Options(texture_size=size, method="texture", solver=sets or None, **opt_keys)
+    t = time.perf_counter()
+    c = compute(opt, inputs, bakes)
+    return c, time.perf_counter() - t
+
+
+def run_project(inputs, bakes, size):
+    from core.pipeline import Options, compute
+
+    return compute(Options(texture_size=size, method="project"), inputs, bakes)
+
+
+def _fmt(v):
+    return "/".join(f"{x:.3f}" for x in v)
+
+
+def evaluate(name, fixture_dir, size, sets, ceiling=True):
+    record, inputs, bakes = load_case(name, fixture_dir)
+    gt, inside = truth(fixture_dir, record, size)
+    row = {"fixture": name, "texture_size": size, "set": {k: repr(v) for k, v in sets.items()}}
+    proj = run_project(inputs, bakes, size)
+    row["project"] = scaled_rmse(proj.albedo, gt, proj.seen & inside).tolist()
+    ours, secs = run_ours(inputs, bakes, size, sets)
+    row["ours"] = scaled_rmse(ours.albedo, gt, ours.seen & inside).tolist()
+    row["ours_seconds"] = secs
+    row["lam"] = ours.info.get("lam")
+    row["lighting_variation"] = ours.info.get("lighting_variation")
+    for key in ("lighting_mode", "stages"):
+        if key in ours.info:
+            row[key] = ours.info[key]
+    if ceiling:
+        row.update(true_lighting(inputs, bakes, gt, inside, size, ours, sets))
+    return row
+
+
+def problem_of(inputs, bakes, size, occlusion=False):
+    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking)."""
+    from core.geometry.texels import texture_layout
+    from core.solve.problem import Problem
+
+    m = inputs.mesh
+    layout = texture_layout(m.tri_uv, m.tri_pos, m.tri_vert, size)
+    transfer = None
+    if occlusion:
+        from core.geometry.transfer import pixel_transfer
+        transfer = pixel_transfer(m.tri_pos, [b.uv for b in bakes], [b.mask for b in bakes],
+                                  [b.normal for b in bakes], [b.position for b in bakes],
+                                  [b.view_weight for b in bakes])
+    return Problem(images=[v.photo for v in inputs.views], masks=[b.mask for b in bakes],
+                   normals=[b.normal for b in bakes], uv=[b.uv for b in bakes], texture=layout,
+                   view_weight=[b.view_weight for b in bakes], names=[v.name for v in inputs.views],
+                   transfer=transfer)
+
+
+def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
+    """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
+    from core.pipeline import ALBEDO_LAMBDA, Options
+    from core.solve.discretization import texture_domain
+    from core.solve.lighting import division_start, fit_lighting, shading_error, solve_albedo
+    from core.solve.solver import SolverParams
+
+    lam = sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA
+    occlusion = sets.get("occlusion", Options.occlusion)
+    out = {"ceiling_lam": lam}
+    for label, occ in (("", occlusion), ("_nu", False)):
+        if label and not occlusion:
+            continue
+        problem = problem_of(inputs, bakes, size, occ)
+        d = texture_domain(problem)
+        sigma = fit_lighting(d, gt.reshape(-1, 3)[d.texel_index], "per_view")
+        if not label:
+            out["lighting_error"] = float(np.mean(shading_error(d, ours.sigma, sigma)))
+            div = np.full((size * size, 3), np.nan, np.float32)
+            div[d.texel_index] = division_start(d, sigma)
+            seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
+            out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
+        r = solve_albedo(problem, sigma, SolverParams(lam=lam), d=d)
+        out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
+    return out
+
+
+def line(row):
+    p, o = np.mean(row["project"]), np.mean(row["ours"])
+    s = (f"{row['fixture']:<22} project {_fmt(row['project'])} ({p:.3f})  ours {_fmt(row['ours'])} ({o:.3f})"
+         f"  x{p / o:.2f}  {row['ours_seconds']:.0f}s  lam {row['lam']}")
+    if "ceiling" in row:
+        s += (f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
+              + (f"  nu {np.mean(row['ceiling_nu']):.3f}" if "ceiling_nu" in row else "")
+              + f"  light err {row['lighting_error']:.3f}")
+    if "lighting_mode" in row:
+        s += f"  mode {row['lighting_mode']}"
+    return s
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--fixtures", default=os.path.join(ROOT, "blend_fixtures"))
+    p.add_argument("--only", nargs="*", help="fixture names (default: all)")
+    p.add_argument("--texture-size", type=int, default=256, help="0: the truth's size")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override an option or solver parameter")
+    p.add_argument("--no-ceiling", action="store_true", help="skip the true-lighting ceiling")
+    p.add_argument("--json", help="write the rows here")
+    a = p.parse_args(argv)
+    found = fixtures(a.fixtures, a.only)
+    if not found:
+        raise SystemExit(f"error: no fixture in {a.fixtures}")
+    sets = parse_sets(a.set)
+    rows = []
+    for name, d in found:
+        size = a.texture_size
+        if not size:
+            with open(os.path.join(d, "scene.json")) as fh:
+                size = json.load(fh)["albedo_gt"]["size"][0]
+        row = evaluate(name, d, size, sets, ceiling=not a.no_ceiling)
+        print(line(row), flush=True)
+        rows.append(row)
+    proj = np.mean([np.mean(r["project"]) for r in rows])
+    ours = np.mean([np.mean(r["ours"]) for r in rows])
+    ratios = [np.mean(r["project"]) / np.mean(r["ours"]) for r in rows]
+    print(f"mean: project {proj:.4f}  ours {ours:.4f}  mean ratio x{np.mean(ratios):.2f}  "
+          f"min ratio x{np.min(ratios):.2f}", flush=True)
+    if a.json:
+        out = {"started": datetime.datetime.now().isoformat(timespec="seconds"), "commit": commit(),
+               "machine": machine(), "rows": rows}
+        os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

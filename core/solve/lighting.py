@@ -1,0 +1,386 @@
+"""Lighting as the scene has it: one world lighting shared by the photos, and a two-stage schedule.
+
+The paper gives every view 9 free SH coefficients per channel. Under one fixed
+light (the common capture) that is 9 m numbers where the scene has 9, and the
+spare freedom lets each view's lighting absorb part of the albedo: alternating
+from rho = I does not resolve the albedo-lighting ambiguity. Two remedies live
+here, both used through :class:`core.solve.solver.SolverParams`:
+
+* ``lighting="shared"``: the lighting of view v is ``g_v sigma``, one world
+  lighting ``sigma`` per channel times a gain ``g_v`` per view and channel
+  (exposure and white balance, 3 numbers per photo). :func:`shared_lighting_step`
+  is its sigma-step: it alternates exact minimisations of the quadratic
+  majorant in sigma and in the gains, so the MM keeps its descent.
+* ``albedo_lam``: :func:`solve_two_stage` first estimates the lighting with a
+  strong TV weight (which keeps shading out of the albedo but flattens its
+  detail), then solves the albedo again with that lighting fixed and a weak TV
+  weight (:func:`solve_albedo`, a convex problem in rho alone).
+
+:func:`fit_lighting` fits the lighting to a known albedo (the true-lighting
+ceiling of the benchmarks) and :func:`shading_error` compares two lightings by
+the shading they give over the observations.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import Cancelled
+from .discretization import image_domain, texture_domain
+from .pyramid import supported_size, upsample_bilinear, with_texture_size
+from .sh import unpack_products
+
+#: TV weight of the albedo stage, chosen by leave-one-scene-out over the fixtures (docs/measurements.md).
+ALBEDO_LAMBDA = 1.0
+
+__all__ = ["ALBEDO_LAMBDA", "choose_lighting", "Coupling", "shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
+           "shading_error", "division_start"]
+
+
+
+def _free(k):
+    """Coefficients of sigma free in the sigma-step; the constant term (index 3) is pinned to fix the scale."""
+    return np.delete(np.arange(k), 3)
+# Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
+# lighting says "dark", dividing by it blows the albedo up.
+SHADING_FLOOR = 0.2
+
+
+def choose_lighting(variation: float | None) -> str:
+    """The lighting model for a measured :func:`core.solve.lambda_choice.lighting_variation`.
+
+    One light for all photos (or too little overlap to tell): per-view
+    lightings held to a shared one (``"coupled"``); a light that moves
+    between the photos: free per view (``"per_view"``).
+    """
+    from .lambda_choice import VARYING_THRESHOLD
+    return "per_view" if variation is not None and variation > VARYING_THRESHOLD else "coupled"
+
+
+def split_gains(sigma_views: np.ndarray):
+    """Write per-view lightings ``(m, 9)`` as ``g_v sigma`` with ``g_0 = 1``: returns ``(sigma, g)``.
+
+    Exact when the views' lightings are proportional; otherwise the gains are
+    the least-squares ratios to view 0's lighting.
+    """
+    sigma = np.array(sigma_views[0], dtype=np.float64)
+    nn = float(sigma @ sigma)
+    g = sigma_views @ sigma / nn if nn > 0 else np.ones(len(sigma_views))
+    g[0] = 1.0
+    return sigma, g
+
+
+def shared_lighting_step(Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray, rounds: int = 4,
+                         pin_constant: bool = True) -> np.ndarray:
+    """The sigma-step of one channel for a lighting shared by the views, up to a gain per view.
+
+    Minimises ``sum_v (g_v^2 s^T M_v s - 2 g_v s^T b_v)`` over the world
+    lighting s (its constant term kept, which pins the scale) and the gains
+    g_v (``g_0 = 1``), alternating exact minimisations, each of which can
+    only lower it.
+
+    Parameters
+    ----------
+    Ms, bs : (m, 9, 9), (m, 9) arrays
+        Each view's normal equations at the current majorant
+        (:meth:`core.solve.solver._Channel.normal_equations`).
+    sigma_views : (m, 9) array
+        The current lighting of each view, ``g_v s``.
+    rounds : int
+        Alternations.
+    pin_constant : bool
+        Keep the constant term of s. The MM needs it (with ``g_0 = 1``) to fix
+        the scales that the albedo, the gains and s trade between them; a fit
+        to a known albedo does not (``g_0 = 1`` is the only gauge there).
+
+    Returns
+    -------
+    (m, 9) array
+        The new ``g_v s``.
+    """
+    s, g = split_gains(np.asarray(sigma_views, dtype=np.float64))
+    free = _free(s.size)
+    for _ in range(rounds):
+        A = np.einsum("v,vij->ij", g * g, Ms)
+        r = np.einsum("v,vi->i", g, bs)
+        if pin_constant:
+            rhs = r[free] - A[free, 3] * s[3]
+            s[free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+        else:
+            s = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+        q = np.einsum("i,vij,j->v", s, Ms, s)
+        p = bs @ s
+        ok = q > 1e-30
+        g_new = np.where(ok, p / np.where(ok, q, 1.0), g)
+        g_new[0] = 1.0
+        g = g_new
+    return g[:, None] * s[None, :]
+
+
+class Coupling:
+    """A prior that holds per-view lightings near one shared lighting: ``lighting="coupled"``.
+
+    The energy gains ``kappa / 2 * sum_v (sigma_v - g_v s)^T G_v (sigma_v - g_v s)``,
+    where ``s`` is a world lighting and ``g_v`` a gain per view (``g_0 = 1``),
+    both free, and ``G_v = Ibar^2 sum_p beta_p nu_p nu_p^T`` over the view's pixels
+    (``Ibar`` the mean observed value): the squared difference of the two
+    shadings over the view, in the units of the data. ``kappa = 0`` is the
+    paper's free lighting per view, ``kappa -> inf`` the shared one.
+    """
+
+    def __init__(self, d, c, kappa, sigma0):
+        self.kappa = float(kappa)
+        w = d.obs_weight.astype(np.float64)
+        values = d.values[d.obs_pixel, c].astype(np.float64)
+        ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
+        beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
+        k = d.nu.shape[1]
+        self.G = np.empty((d.n_views, k, k))
+        for v in range(d.n_views):
+            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+            self.G[v] = ibar2 * unpack_products(beta[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
+
+    def _fit_world(self, sigma, s, g, rounds=3):
+        G = self.G
+        for _ in range(rounds):
+            s = np.linalg.lstsq(np.einsum("v,vij->ij", g * g, G), np.einsum("v,vij,vj->i", g, G, sigma),
+                                rcond=1e-10)[0]
+            q = np.einsum("i,vij,j->v", s, G, s)
+            p = np.einsum("i,vij,vj->v", s, G, sigma)
+            ok = q > 1e-30
+            g = np.where(ok, p / np.where(ok, q, 1.0), g)
+            g[0] = 1.0
+        return s, g
+
+    def penalty(self, sigma, world=None):
+        s, g = self.world if world is None else world
+        diff = sigma - g[:, None] * s[None, :]
+        return 0.5 * self.kappa * float(np.einsum("vi,vij,vj->", diff, self.G, diff))
+
+    def step(self, Ms, bs, sigma_views, rounds=2):
+        """The sigma-step: per-view lightings and the world lighting, alternately minimised exactly."""
+        sigma = np.array(sigma_views, dtype=np.float64)
+        s, g = self.world
+        kG = self.kappa * self.G
+        free = _free(sigma.shape[1])
+        for _ in range(rounds):
+            for v in range(len(sigma)):
+                A = Ms[v] + kG[v]
+                r = bs[v] + kG[v] @ (g[v] * s)
+                if v == 0:
+                    rhs = r[free] - A[free, 3] * sigma[0, 3]
+                    sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+                else:
+                    sigma[v] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+            s, g = self._fit_world(sigma, s, g)
+        return sigma, (s, g)
+
+
+def _shade(d, sigma):
+    """Shading ``sigma_v . nu_p`` per pixel (float64); sigma is (m, 9)."""
+    out = np.empty(d.nu.shape[0])
+    for v in range(d.n_views):
+        a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        out[a:b] = d.nu[a:b].astype(np.float64) @ sigma[v]
+    return out
+
+
+def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
+    """The shading raised to at least ``floor`` times its median over the positive values."""
+    pos = shade[shade > 0]
+    low = floor * (float(np.median(pos)) if pos.size else 1.0)
+    return np.maximum(shade, low)
+
+
+def division_start(d, sigma: np.ndarray) -> np.ndarray:
+    """Per unknown, the least-squares albedo of its observations under a fixed lighting: ``(n, C)``.
+
+    ``rho_u = sum_o beta_o a_o I_o / sum_o beta_o a_o^2`` over the observations
+    of unknown u, with the floored shading ``a`` (the minimiser of the data
+    term alone when each observation sees one unknown).
+    """
+    C = d.values.shape[1]
+    out = np.empty((d.n_unknowns, C), np.float32)
+    w = d.obs_weight.astype(np.float64)
+    for c in range(C):
+        a = floored(_shade(d, sigma[:, c]))[d.obs_pixel]
+        num = d.scatter(w * a * d.values[d.obs_pixel, c])
+        den = d.scatter(w * a * a)
+        out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
+    return out
+
+
+def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None):
+    """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
+
+    Parameters
+    ----------
+    problem : core.solve.problem.Problem
+    sigma : (m, C, 9) array
+        The lighting of each view (as :class:`core.solve.solver.Result` gives it).
+    params : core.solve.solver.SolverParams
+        ``lam`` is the TV weight; ``max_iter``, ``min_iter``, ``tol``, ``delta``,
+        ``cg_iter``, ``threads``, ``extrapolate`` and ``max_texels_per_pixel``
+        apply as in :func:`core.solve.solver.solve`.
+    rho0 : (n, C) array, optional
+        Start; default :func:`division_start`.
+    d : Discretization, optional
+        The problem's, if already built.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
+    """
+    from .solver import Result, _Channel, _outputs
+
+    params = replace(params, lighting="fixed", albedo_lam=None).resolved()
+    t0 = time.perf_counter()
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if (d is None and params.domain == "texture" and params.max_texels_per_pixel > 0
+            and problem.texture is not None):
+        size = supported_size(problem, params.max_texels_per_pixel)
+        if size < problem.texture.size:
+            r = solve_albedo(with_texture_size(problem, size), sigma, replace(params, max_texels_per_pixel=0.0),
+                             None, progress, cancel)
+            r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
+            r.info["solved_size"] = size
+            return r
+    if d is None:
+        d = (texture_domain(problem, data_model=params.data_model) if params.domain == "texture"
+             else image_domain(problem, normalise_correspondences=params.normalise_correspondences))
+    t_build = time.perf_counter() - t0
+    if rho0 is None:
+        rho0 = division_start(d, sigma)
+    channels = []
+    for c in range(problem.channels):
+        ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
+        shade = floored(ch.shade.astype(np.float64)).astype(ch.ft)
+        ch._set_sigma(ch.sigma, shade)
+        ch.e = ch.energy()
+        channels.append(ch)
+    history = [sum(ch.e for ch in channels)]
+    it = 0
+    with ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels)))) as pool:
+        while it < params.max_iter:
+            if cancel is not None and cancel():
+                raise Cancelled("cancelled by the user")
+            history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            it += 1
+            if progress is not None:
+                progress(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
+            prev, cur = history[-2], history[-1]
+            if it >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
+                break
+    rho = np.stack([ch.rho for ch in channels], axis=1)
+    sigma = sigma.copy()
+    for c, ch in enumerate(channels):
+        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        if np.isfinite(kappa) and kappa > 0:
+            rho[:, c] *= kappa
+            sigma[:, c] /= kappa
+    views, texture, seen = _outputs(problem, d, rho)
+    info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
+            "n_unknowns": d.n_unknowns, "domain": d.domain,
+            "solved_size": problem.texture.size if d.domain == "texture" else None}
+    return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
+
+
+def solve_two_stage(problem, params, progress=None, cancel=None):
+    """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
+
+    Stage 1 is :func:`core.solve.solver.solve` with ``params`` (TV weight
+    ``lam``, lighting model ``params.lighting``), on a texture of at most
+    ``params.light_size`` (the lighting has 9 coefficients; it needs no fine
+    texels). Stage 2 is :func:`solve_albedo` with ``params.albedo_lam`` on the
+    full problem.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        Stage 2's, with stage 1's summary in ``info["lighting_stage"]``.
+    """
+    from .solver import solve
+
+    t0 = time.perf_counter()
+
+    def part(lo, hi, label):
+        if progress is None:
+            return None
+        return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}: {msg}")
+
+    light_problem = problem
+    if (params.domain == "texture" and params.light_size and problem.texture is not None
+            and problem.texture.size > params.light_size):
+        light_problem = with_texture_size(problem, params.light_size)
+    first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
+    second = solve_albedo(problem, first.sigma, replace(params, lam=params.albedo_lam),
+                          progress=part(0.6, 1.0, "albedo"), cancel=cancel)
+    second.info["lighting_stage"] = {"iterations": first.iterations, "energy": first.energy[-1:],
+                                     "solved_size": first.info.get("solved_size"), "lam": params.lam,
+                                     "lighting": params.lighting}
+    second.info["albedo_lam"] = params.albedo_lam
+    second.info["elapsed"] = [time.perf_counter() - t0]
+    return second
+
+
+def _ls_equations(d, rho, c):
+    """Per view, the least-squares normal equations of the lighting for a known albedo (one channel)."""
+    rho_o = d.gather(rho[:, c].astype(np.float32)).astype(np.float64)
+    w = d.obs_weight.astype(np.float64)
+    npix = d.nu.shape[0]
+    g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
+    h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * d.values[:, c]
+    k = d.nu.shape[1]
+    Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
+    for v in range(d.n_views):
+        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        Ms[v] = unpack_products(g[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        bs[v] = h[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+    return Ms, bs
+
+
+def fit_lighting(d, rho: np.ndarray, lighting: str = "per_view", rounds: int = 50) -> np.ndarray:
+    """The least-squares lighting of each view for a known albedo: ``(m, C, 9)``.
+
+    Parameters
+    ----------
+    d : Discretization
+    rho : (n, C) array
+        The albedo at d's unknowns.
+    lighting : {"per_view", "shared"}
+        Free per view, or one lighting times a gain per view and channel.
+    rounds : int
+        Alternations of the shared fit.
+    """
+    C = rho.shape[1]
+    out = np.empty((d.n_views, C, d.nu.shape[1]))
+    for c in range(C):
+        Ms, bs = _ls_equations(d, rho, c)
+        per_view = np.stack([np.linalg.lstsq(M, b, rcond=1e-10)[0] for M, b in zip(Ms, bs)])
+        if lighting == "shared":
+            per_view = shared_lighting_step(Ms, bs, per_view, rounds=rounds, pin_constant=False)
+        out[:, c] = per_view
+    return out
+
+
+def shading_error(d, sigma: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Per channel, the relative RMS difference of two lightings' shading over the observations.
+
+    The estimate is scaled by the one factor per channel that fits the
+    reference best (the albedo's scale is free): ``|k s - s_ref| / |s_ref|``,
+    weighted by the observations' weights.
+    """
+    C = sigma.shape[1]
+    w = d.obs_weight.astype(np.float64)
+    out = np.empty(C)
+    for c in range(C):
+        s = _shade(d, sigma[:, c])[d.obs_pixel]
+        r = _shade(d, reference[:, c])[d.obs_pixel]
+        k = np.sum(w * s * r) / max(np.sum(w * s * s), 1e-30)
+        out[c] = np.sqrt(np.sum(w * (k * s - r) ** 2) / max(np.sum(w * r * r), 1e-30))
+    return out

@@ -1,0 +1,129 @@
+import numpy as np
+import pytest
+
+from core.evaluate.metrics import scaled_rmse
+from core.evaluate.synthetic import sphere_scene
+from core.solve.discretization import texture_domain
+from core.solve.lighting import fit_lighting, shading_error, shared_lighting_step, solve_albedo, split_gains
+from core.solve.problem import Problem
+from core.solve.solver import SolverParams, solve
+
+
+@pytest.fixture(scope="module")
+def exposed():
+    """A fixed light, and a different exposure and white balance per photo (3 gains per view)."""
+    scene = sphere_scene(varying_light=False, n_views=6, height=60, width=80, texture_size=32, seed=5,
+                         noise=0.002, textured=True)
+    gains = np.exp(0.3 * np.random.default_rng(1).standard_normal((6, 3)))
+    p = scene.problem
+    problem = Problem([im * g for im, g in zip(p.images, gains)], p.masks, p.normals, uv=p.uv, texture=p.texture,
+                      view_weight=p.view_weight)
+    return scene, problem, gains
+
+
+def _objective(Ms, bs, sig):
+    return float(np.einsum("vi,vij,vj->", sig, Ms, sig) - 2 * np.einsum("vi,vi->", sig, bs))
+
+
+def test_shared_step_descends_and_finds_the_gains():
+    rng = np.random.default_rng(0)
+    m = 5
+    s_true = rng.standard_normal(9)
+    g_true = np.exp(0.3 * rng.standard_normal(m))
+    g_true[0] = 1
+    X = [rng.standard_normal((200, 9)) for _ in range(m)]
+    Ms = np.stack([x.T @ x for x in X])
+    bs = np.stack([x.T @ (x @ (g * s_true)) for x, g in zip(X, g_true)])   # noiseless: b = M g s
+    start = np.tile(s_true * 1.0, (m, 1))
+    start[:, 0] += 0.5                       # wrong lighting, gains 1
+    before = _objective(Ms, bs, start)
+    one = shared_lighting_step(Ms, bs, start, rounds=1, pin_constant=False)
+    assert _objective(Ms, bs, one) <= before
+    fit = shared_lighting_step(Ms, bs, start, rounds=200, pin_constant=False)
+    s, g = split_gains(fit)
+    assert np.allclose(g, g_true, rtol=1e-4), (g, g_true)
+    assert np.allclose(s, s_true, rtol=1e-4)
+    # Pinned, the constant term stays where it was and the rest still descends.
+    pinned = shared_lighting_step(Ms, bs, start, rounds=3)
+    assert np.allclose(pinned[0, 3], start[0, 3])
+    assert _objective(Ms, bs, pinned) <= before
+
+
+def test_fit_lighting_recovers_gains_and_light_from_the_true_albedo(exposed):
+    scene, problem, gains = exposed
+    d = texture_domain(problem)
+    rho = scene.albedo_texture.reshape(-1, 3)[d.texel_index]
+    sigma = fit_lighting(d, rho, "shared")
+    truth = scene.sigma * gains[:, :, None]
+    assert np.all(shading_error(d, sigma, truth) < 0.02)
+    # Per view, each fit sees half the normals and the splat's blur at the albedo's edges weighs more.
+    assert np.all(shading_error(d, fit_lighting(d, rho, "per_view"), truth) < 0.05)
+    # A wrong lighting is measurably off.
+    wrong = truth.copy()
+    wrong[:, :, 0] += 0.3
+    assert np.all(shading_error(d, wrong, truth) > 0.1)
+
+
+@pytest.mark.parametrize("lighting", ["per_view", "shared", "coupled"])
+def test_energy_never_increases_in_either_stage(exposed, lighting):
+    _, problem, _ = exposed
+    one = solve(problem, SolverParams(lam=2.0, lighting=lighting, levels=1, max_iter=10, min_iter=10))
+    assert np.all(np.diff(one.energy) <= 0), np.diff(one.energy)
+    two = solve_albedo(problem, one.sigma, SolverParams(lam=0.2, max_iter=10, min_iter=10))
+    assert len(two.energy) == 11
+    assert np.all(np.diff(two.energy) <= 0), np.diff(two.energy)
+    assert two.energy[-1] < two.energy[0]
+
+
+def _view_rmse(result, scene, problem):
+    est = np.concatenate([v[m] for v, m in zip(result.views, problem.masks)])
+    gt = np.concatenate([g[m] for g, m in zip(scene.albedo_views, problem.masks)])
+    return scaled_rmse(est, gt)
+
+
+def test_known_lighting_recovers_the_albedo(exposed):
+    # With the lighting right (up to the gains), the albedo is a convex problem; what is left is where the
+    # synthetic light nearly vanishes. The one-stage solve, which must also find the lighting, is far off.
+    scene, problem, gains = exposed
+    truth = scene.sigma * gains[:, :, None]
+    known = _view_rmse(solve_albedo(problem, truth, SolverParams(lam=0.05)), scene, problem)
+    one = _view_rmse(solve(problem, SolverParams(lam=5.0, max_iter=20)), scene, problem)
+    assert np.all(known < 0.06), known
+    assert np.all(known < 0.4 * one), (known, one)
+
+
+def test_two_stages_report_both(exposed):
+    _, problem, _ = exposed
+    r = solve(problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5,
+                                    light_size=16))
+    assert r.info["albedo_lam"] == 0.3
+    assert r.info["lighting_stage"]["lighting"] == "shared"
+    assert r.info["lighting_stage"]["solved_size"] == 16
+    assert r.texture.shape == (32, 32, 3) and np.isfinite(r.texture[r.seen]).all()
+    # The shared lighting comes out as one lighting times a gain per view.
+    for c in range(3):
+        s, g = split_gains(r.sigma[:, c])
+        assert np.allclose(g[:, None] * s, r.sigma[:, c], atol=1e-6 * np.abs(s).max())
+
+
+def test_bad_lighting_params():
+    with pytest.raises(ValueError, match="lighting"):
+        SolverParams(lighting="world").check()
+    with pytest.raises(ValueError, match="albedo_lam"):
+        SolverParams(albedo_lam=-1.0).check()
+
+
+@pytest.mark.parametrize("lighting", ["per_view", "coupled"])
+def test_a_25_coefficient_transfer_solves(exposed, lighting):
+    from core.geometry.transfer import open_factor
+    from core.solve.sh import sh_basis
+    _, problem, _ = exposed
+    p = problem
+    transfer = [sh_basis(n, order=4) * open_factor(25).astype(np.float32) for n in p.normals]
+    q = Problem(p.images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight,
+                transfer=transfer)
+    r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=6, min_iter=6))
+    assert r.sigma.shape == (6, 3, 25)
+    assert np.all(np.diff(r.energy) <= 0)
+    with pytest.raises(ValueError, match="9-coefficient"):
+        solve(q, SolverParams(lam=2.0, gauss_newton=True, levels=1, max_iter=1))
