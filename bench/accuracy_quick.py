@@ -172,7 +172,8 @@ def problem_of(inputs, bakes, size, occlusion=False):
 
 def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
-    from core.pipeline import ALBEDO_LAMBDA, Options
+    from core.pipeline import Options
+    from core.solve.lighting import ALBEDO_LAMBDA
     from core.solve.discretization import texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error, solve_albedo
     from core.solve.solver import SolverParams
