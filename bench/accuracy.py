@@ -28,6 +28,7 @@ Columns, per channel R / G / B:
 It prints a Markdown table, how far each row is below ``project`` (the aim: >= 4x) and the paper's numbers for
 the comparable scenes, and writes everything as JSON (with commit and machine).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,13 +42,15 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import numpy as np  # noqa: E402
 
 from bench.headless import ROOT, commit, machine, run_headless  # noqa: E402
-from core.io.exr import read_exr  # noqa: E402
 from core.evaluate.metrics import scaled_rmse  # noqa: E402
+from core.io.exr import read_exr  # noqa: E402
 
 #: The paper's Table 1 (its method), for our comparable scenes.
-PAPER = {"lambert_sky": ("Lambertian, skydome (Table 1, fig. 1)", [0.07, 0.04, 0.07]),
-         "photo_sun": ("specular, one extended light (Table 1, fig. 2)", [0.22, 0.13, 0.12]),
-         "photo_sun_coarse": ("fig. 2 with coarse geometry (fig. 5 caption)", [0.24, 0.14, 0.13])}
+PAPER = {
+    "lambert_sky": ("Lambertian, skydome (Table 1, fig. 1)", [0.07, 0.04, 0.07]),
+    "photo_sun": ("specular, one extended light (Table 1, fig. 2)", [0.22, 0.13, 0.12]),
+    "photo_sun_coarse": ("fig. 2 with coarse geometry (fig. 5 caption)", [0.24, 0.14, 0.13]),
+}
 #: The paper's lambda in its figures: 8 for the Lambertian scene, 2.5 for the specular ones; mu = 1000.
 PAPER_LAMBDA = {"lambert_sky": 8.0}
 PAPER_LAMBDA_DEFAULT = 2.5
@@ -60,8 +63,11 @@ def fixtures(root, only=None):
     out = []
     for name in sorted(os.listdir(root)):
         d = os.path.join(root, name)
-        if (only and name not in only) or not os.path.isfile(os.path.join(d, "scene.json")) \
-                or not os.path.isfile(os.path.join(d, "scene.blend")):
+        if (
+            (only and name not in only)
+            or not os.path.isfile(os.path.join(d, "scene.json"))
+            or not os.path.isfile(os.path.join(d, "scene.blend"))
+        ):
             continue
         out.append((name, d))
     return out
@@ -74,12 +80,19 @@ PAPER_MODEL = ["--albedo-lambda", "none", "--no-occlusion", "--lighting", "per_v
 def rows_for(name, image=True):
     """(folder, row label, CLI arguments) for one fixture."""
     lam = PAPER_LAMBDA.get(name, PAPER_LAMBDA_DEFAULT)
-    rows = [("project", "project", ["--method", "project"]),
-            ("texture", "texture (ours, default)", ["--method", "texture"]),
-            ("paper_model", "texture (paper's model)", ["--method", "texture", *PAPER_MODEL])]
+    rows = [
+        ("project", "project", ["--method", "project"]),
+        ("texture", "texture (ours, default)", ["--method", "texture"]),
+        ("paper_model", "texture (paper's model)", ["--method", "texture", *PAPER_MODEL]),
+    ]
     if image:
-        rows.append(("image", f"image (paper, lambda {lam:g}, mu {PAPER_MU:g})",
-                     ["--method", "image", "--lambda", lam, "--mu", PAPER_MU, *PAPER_MODEL]))
+        rows.append(
+            (
+                "image",
+                f"image (paper, lambda {lam:g}, mu {PAPER_MU:g})",
+                ["--method", "image", "--lambda", lam, "--mu", PAPER_MU, *PAPER_MODEL],
+            )
+        )
     return rows
 
 
@@ -101,7 +114,7 @@ def views_rmse(out_dir, report, fixture_dir, record):
         e = read_exr(os.path.join(out_dir, cam["file"]))[0]
         t = read_exr(os.path.join(fixture_dir, rel))[0]
         if e.shape[:2] != t.shape[:2]:
-            return None           # the photos were downscaled: no pixel-to-pixel truth
+            return None  # the photos were downscaled: no pixel-to-pixel truth
         keep = (e[..., 3] > 0) & (t[..., 3] > 0.5)
         est.append(e[keep][:, :3])
         tru.append(np.clip(t[keep][:, :3] / t[keep][:, 3:4], 0, 1))
@@ -116,25 +129,40 @@ def run_fixture(name, fixture_dir, work, image=True):
     out = []
     for folder, label, args in rows_for(name, image):
         out_dir = os.path.join(work, name, folder)
-        r = run_headless(os.path.join(fixture_dir, "scene.blend"), out_dir, "--object", obj,
-                         "--texture-size", gt.shape[0], *args)
-        row = {"fixture": name, "key": folder, "row": label, "args": [str(a) for a in args],
-               "returncode": r.returncode,
-               "wall_s": r.wall_s, "peak_mb": r.peak_mb}
+        r = run_headless(
+            os.path.join(fixture_dir, "scene.blend"), out_dir, "--object", obj, "--texture-size", gt.shape[0], *args
+        )
+        row = {
+            "fixture": name,
+            "key": folder,
+            "row": label,
+            "args": [str(a) for a in args],
+            "returncode": r.returncode,
+            "wall_s": r.wall_s,
+            "peak_mb": r.peak_mb,
+        }
         if r.returncode != 0:
             row["error"] = r.log[-2000:]
             print(f"{name} / {label}: FAILED\n{r.log[-2000:]}", file=sys.stderr)
         else:
             rep = r.report
             row["texture_rmse"], row["texels_compared"] = texture_rmse(
-                os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt)
+                os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt
+            )
             row["views_rmse"] = views_rmse(out_dir, rep, fixture_dir, record)
-            row.update(times_s=rep["times_s"], iterations=rep["iterations"],
-                       final_energy=rep["energy"][-1] if rep["energy"] else None,
-                       photos=[c["size"] for c in rep["cameras"]][:1], n_photos=len(rep["cameras"]))
-            print(f"{name} / {label}: texture RMSE {_fmt(row['texture_rmse'])}"
-                  + (f", views RMSE {_fmt(row['views_rmse'])}" if row["views_rmse"] else "")
-                  + f" ({r.wall_s:.0f} s, {r.peak_mb:.0f} MB)", flush=True)
+            row.update(
+                times_s=rep["times_s"],
+                iterations=rep["iterations"],
+                final_energy=rep["energy"][-1] if rep["energy"] else None,
+                photos=[c["size"] for c in rep["cameras"]][:1],
+                n_photos=len(rep["cameras"]),
+            )
+            print(
+                f"{name} / {label}: texture RMSE {_fmt(row['texture_rmse'])}"
+                + (f", views RMSE {_fmt(row['views_rmse'])}" if row["views_rmse"] else "")
+                + f" ({r.wall_s:.0f} s, {r.peak_mb:.0f} MB)",
+                flush=True,
+            )
         out.append(row)
     return out
 
@@ -151,25 +179,36 @@ def _ratio(project, row):
 
 def table(rows) -> str:
     """The Markdown table of all rows."""
-    lines = ["| fixture | row | texture RMSE R / G / B | project / row | views RMSE R / G / B (paper's protocol) "
-             "| paper | time s | peak MB |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| fixture | row | texture RMSE R / G / B | project / row | views RMSE R / G / B (paper's protocol) "
+        "| paper | time s | peak MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         proj = next((p for p in rows if p["fixture"] == r["fixture"] and p["row"] == "project"), None)
         paper = PAPER.get(r["fixture"])
         is_project = r["row"] == "project"
-        lines.append("| {} | {} | {} | {} | {} | {} | {:.0f} | {:.0f} |".format(
-            r["fixture"], r["row"], _fmt(r.get("texture_rmse")),
-            "-" if is_project or proj is None else _ratio(proj.get("texture_rmse"), r.get("texture_rmse")),
-            _fmt(r.get("views_rmse")),
-            "-" if is_project or paper is None else _fmt(paper[1]),
-            r["wall_s"], r["peak_mb"]))
+        lines.append(
+            "| {} | {} | {} | {} | {} | {} | {:.0f} | {:.0f} |".format(
+                r["fixture"],
+                r["row"],
+                _fmt(r.get("texture_rmse")),
+                "-" if is_project or proj is None else _ratio(proj.get("texture_rmse"), r.get("texture_rmse")),
+                _fmt(r.get("views_rmse")),
+                "-" if is_project or paper is None else _fmt(paper[1]),
+                r["wall_s"],
+                r["peak_mb"],
+            )
+        )
     return "\n".join(lines)
 
 
 def summary(rows) -> str:
     """Per kind of row, over the fixtures: mean RMSE, and the mean, geometric mean and least of project / row."""
-    lines = ["| row | fixtures | mean RMSE | mean project / row | geometric mean | least |", "|---|---|---|---|---|---|"]
+    lines = [
+        "| row | fixtures | mean RMSE | mean project / row | geometric mean | least |",
+        "|---|---|---|---|---|---|",
+    ]
     keys = [k for k in dict.fromkeys(r.get("key") for r in rows) if k and k != "project"]
     for key in keys:
         rel, rmse = [], []
@@ -180,8 +219,10 @@ def summary(rows) -> str:
             rmse.append(np.mean(r["texture_rmse"]))
             rel.append(np.mean(proj["texture_rmse"]) / rmse[-1])
         if rel:
-            lines.append(f"| {key} | {len(rel)} | {np.mean(rmse):.4f} | {np.mean(rel):.2f}x | "
-                         f"{np.exp(np.mean(np.log(rel))):.2f}x | {np.min(rel):.2f}x |")
+            lines.append(
+                f"| {key} | {len(rel)} | {np.mean(rmse):.4f} | {np.mean(rel):.2f}x | "
+                f"{np.exp(np.mean(np.log(rel))):.2f}x | {np.min(rel):.2f}x |"
+            )
     return "\n".join(lines)
 
 
@@ -189,8 +230,9 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fixtures", default=os.path.join(ROOT, "blend_fixtures"))
     p.add_argument("--only", nargs="*", help="fixture names (default: all)")
-    p.add_argument("--work", default=os.path.join(ROOT, "build", "bench", "accuracy"),
-                   help="where the runs write their outputs")
+    p.add_argument(
+        "--work", default=os.path.join(ROOT, "build", "bench", "accuracy"), help="where the runs write their outputs"
+    )
     p.add_argument("--json", default=os.path.join(ROOT, "bench", "accuracy.json"), help="results file")
     p.add_argument("--no-image", action="store_true", help="leave out the image-domain (paper) rows")
     a = p.parse_args(argv)
@@ -201,8 +243,14 @@ def main(argv=None):
     rows = []
     for name, d in found:
         rows += run_fixture(name, d, a.work, image=not a.no_image)
-    result = {"started": started, "commit": commit(), "machine": machine(), "rows": rows,
-              "paper": {k: {"scene": v[0], "rmse": v[1]} for k, v in PAPER.items()}, "aim_ratio": AIM_RATIO}
+    result = {
+        "started": started,
+        "commit": commit(),
+        "machine": machine(),
+        "rows": rows,
+        "paper": {k: {"scene": v[0], "rmse": v[1]} for k, v in PAPER.items()},
+        "aim_ratio": AIM_RATIO,
+    }
     os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
     with open(a.json, "w") as fh:
         json.dump(result, fh, indent=1)

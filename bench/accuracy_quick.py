@@ -23,6 +23,7 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
 RMSE is ``core.evaluate.metrics.scaled_rmse`` over the seen texels inside the UV islands, truth in [0, 1],
 as in ``bench/accuracy.py``; a truth larger than ``--texture-size`` is box-averaged down.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -110,9 +111,10 @@ def parse_sets(items):
 
 
 def run_ours(inputs, bakes, size, sets):
+    import dataclasses
+
     from core.pipeline import Options, compute
 
-    import dataclasses
     sets = dict(sets)
     fields = {f.name for f in dataclasses.fields(Options)} - {"solver"}
     opt_keys = {k: sets.pop(k) for k in list(sets) if k in fields}
@@ -161,21 +163,32 @@ def problem_of(inputs, bakes, size, occlusion=False):
     transfer = None
     if occlusion:
         from core.geometry.transfer import pixel_transfer
-        transfer = pixel_transfer(m.tri_pos, [b.uv for b in bakes], [b.mask for b in bakes],
-                                  [b.normal for b in bakes], [b.position for b in bakes],
-                                  [b.view_weight for b in bakes])
-    return Problem(images=[v.photo for v in inputs.views], masks=[b.mask for b in bakes],
-                   normals=[b.normal for b in bakes], uv=[b.uv for b in bakes], texture=layout,
-                   view_weight=[b.view_weight for b in bakes], names=[v.name for v in inputs.views],
-                   transfer=transfer)
+
+        transfer = pixel_transfer(
+            m.tri_pos,
+            [b.uv for b in bakes],
+            [b.mask for b in bakes],
+            [b.normal for b in bakes],
+            [b.position for b in bakes],
+            [b.view_weight for b in bakes],
+        )
+    return Problem(
+        images=[v.photo for v in inputs.views],
+        masks=[b.mask for b in bakes],
+        normals=[b.normal for b in bakes],
+        uv=[b.uv for b in bakes],
+        texture=layout,
+        view_weight=[b.view_weight for b in bakes],
+        names=[v.name for v in inputs.views],
+        transfer=transfer,
+    )
 
 
 def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
-    from core.solve.lighting import ALBEDO_LAMBDA
     from core.solve.discretization import texture_domain
-    from core.solve.lighting import division_start, fit_lighting, shading_error, solve_albedo
+    from core.solve.lighting import ALBEDO_LAMBDA, division_start, fit_lighting, shading_error, solve_albedo
     from core.solve.solver import SolverParams
 
     lam = sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA
@@ -200,12 +213,16 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
 
 def line(row):
     p, o = np.mean(row["project"]), np.mean(row["ours"])
-    s = (f"{row['fixture']:<22} project {_fmt(row['project'])} ({p:.3f})  ours {_fmt(row['ours'])} ({o:.3f})"
-         f"  x{p / o:.2f}  {row['ours_seconds']:.0f}s  lam {row['lam']}")
+    s = (
+        f"{row['fixture']:<22} project {_fmt(row['project'])} ({p:.3f})  ours {_fmt(row['ours'])} ({o:.3f})"
+        f"  x{p / o:.2f}  {row['ours_seconds']:.0f}s  lam {row['lam']}"
+    )
     if "ceiling" in row:
-        s += (f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
-              + (f"  nu {np.mean(row['ceiling_nu']):.3f}" if "ceiling_nu" in row else "")
-              + f"  light err {row['lighting_error']:.3f}")
+        s += (
+            f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
+            + (f"  nu {np.mean(row['ceiling_nu']):.3f}" if "ceiling_nu" in row else "")
+            + f"  light err {row['lighting_error']:.3f}"
+        )
     if "lighting_mode" in row:
         s += f"  mode {row['lighting_mode']}"
     return s
@@ -236,11 +253,18 @@ def main(argv=None):
     proj = np.mean([np.mean(r["project"]) for r in rows])
     ours = np.mean([np.mean(r["ours"]) for r in rows])
     ratios = [np.mean(r["project"]) / np.mean(r["ours"]) for r in rows]
-    print(f"mean: project {proj:.4f}  ours {ours:.4f}  mean ratio x{np.mean(ratios):.2f}  "
-          f"min ratio x{np.min(ratios):.2f}", flush=True)
+    print(
+        f"mean: project {proj:.4f}  ours {ours:.4f}  mean ratio x{np.mean(ratios):.2f}  "
+        f"min ratio x{np.min(ratios):.2f}",
+        flush=True,
+    )
     if a.json:
-        out = {"started": datetime.datetime.now().isoformat(timespec="seconds"), "commit": commit(),
-               "machine": machine(), "rows": rows}
+        out = {
+            "started": datetime.datetime.now().isoformat(timespec="seconds"),
+            "commit": commit(),
+            "machine": machine(),
+            "rows": rows,
+        }
         os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

@@ -3,6 +3,7 @@
 Shared by ``bench/accuracy.py`` and ``bench/speed.py``. One child per run, so
 runs never inherit each other's peak memory or caches.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,16 +26,15 @@ class Run:
     args: list
     out_dir: str
     returncode: int
-    wall_s: float           # the whole process: Python start, bpy import, .blend load, pipeline
-    peak_mb: float          # the child's ru_maxrss
-    report: dict | None     # its report.json (None on failure)
-    log: str                # stdout + stderr
+    wall_s: float  # the whole process: Python start, bpy import, .blend load, pipeline
+    peak_mb: float  # the child's ru_maxrss
+    report: dict | None  # its report.json (None on failure)
+    log: str  # stdout + stderr
 
 
 def run_headless(blend, out_dir, *args) -> Run:
     """``python -m blender_addon BLEND --out OUT_DIR --overwrite ARGS``; wait, and measure it."""
-    cmd = [sys.executable, "-m", "blender_addon", str(blend), "--out", str(out_dir), "--overwrite",
-           *map(str, args)]
+    cmd = [sys.executable, "-m", "blender_addon", str(blend), "--out", str(out_dir), "--overwrite", *map(str, args)]
     env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
     os.makedirs(out_dir, exist_ok=True)
     log_path = os.path.join(out_dir, "run.log")
@@ -52,8 +52,15 @@ def run_headless(blend, out_dir, *args) -> Run:
     if p.returncode == 0 and os.path.exists(rpath):
         with open(rpath) as fh:
             report = json.load(fh)
-    return Run(args=cmd[2:], out_dir=str(out_dir), returncode=p.returncode, wall_s=wall,
-               peak_mb=usage.ru_maxrss / 1024.0, report=report, log=text)
+    return Run(
+        args=cmd[2:],
+        out_dir=str(out_dir),
+        returncode=p.returncode,
+        wall_s=wall,
+        peak_mb=usage.ru_maxrss / 1024.0,
+        report=report,
+        log=text,
+    )
 
 
 def machine() -> str:
@@ -77,10 +84,12 @@ def machine() -> str:
 def commit() -> str:
     """The short commit, with ``+dirty`` if tracked files differ from it."""
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "core", "blender_addon"],
-                               cwd=ROOT).returncode != 0
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = (
+            subprocess.run(["git", "diff", "--quiet", "HEAD", "--", "core", "blender_addon"], cwd=ROOT).returncode != 0
+        )
         return sha + ("+dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

@@ -10,6 +10,7 @@ parameters and ``--texture-size 2048`` in a fresh child process (:mod:`bench.hea
 each stage from its ``report.json``, the whole process's wall time (Python start, ``import bpy`` and loading the
 .blend included) and its peak resident memory.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,13 +41,13 @@ def render_scene(work):
             r = json.load(fh)
         if r["render"]["resolution"] == list(RESOLUTION) and len(r["cameras"]) == N_CAMERAS:
             return blend
-    code = ("import sys; sys.path.insert(0, 'blend_fixtures'); import make_fixtures as m; "
-            f"m.generate('lambert_sky', {work!r}, resolution={RESOLUTION!r}, n_cameras={N_CAMERAS}, "
-            f"samples={SAMPLES}, view_gt=False)")
-    print(f"rendering {N_CAMERAS} x {RESOLUTION[0]}x{RESOLUTION[1]} at {SAMPLES} samples into {work} ...",
-          flush=True)
-    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True,
-                   env=dict(os.environ, PYTHONPATH=ROOT))
+    code = (
+        "import sys; sys.path.insert(0, 'blend_fixtures'); import make_fixtures as m; "
+        f"m.generate('lambert_sky', {work!r}, resolution={RESOLUTION!r}, n_cameras={N_CAMERAS}, "
+        f"samples={SAMPLES}, view_gt=False)"
+    )
+    print(f"rendering {N_CAMERAS} x {RESOLUTION[0]}x{RESOLUTION[1]} at {SAMPLES} samples into {work} ...", flush=True)
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, env=dict(os.environ, PYTHONPATH=ROOT))
     return blend
 
 
@@ -59,26 +60,50 @@ def main(argv=None):
     os.makedirs(a.work, exist_ok=True)
     blend = render_scene(os.path.abspath(a.work))
     started = datetime.datetime.now().isoformat(timespec="seconds")
-    r = run_headless(blend, os.path.join(a.work, "out_" + a.method), "--object", "Subject",
-                     "--texture-size", TEXTURE, "--method", a.method)
+    r = run_headless(
+        blend,
+        os.path.join(a.work, "out_" + a.method),
+        "--object",
+        "Subject",
+        "--texture-size",
+        TEXTURE,
+        "--method",
+        a.method,
+    )
     if r.returncode != 0:
         raise SystemExit(f"error: the run failed:\n{r.log[-3000:]}")
     rep = r.report
     times = {k: float(rep["times_s"].get(k, 0.0)) for k in STAGES}
-    result = {"started": started, "commit": commit(), "machine": machine(), "method": a.method,
-              "photos": len(rep["cameras"]), "photo_size": rep["cameras"][0]["size"], "texture": TEXTURE,
-              "iterations": rep["iterations"], "times_s": times, "stages_total_s": sum(times.values()),
-              "process_wall_s": r.wall_s, "peak_mb": r.peak_mb, "target_s": TARGET_S,
-              "solver_info": rep.get("solver_info", {})}
+    result = {
+        "started": started,
+        "commit": commit(),
+        "machine": machine(),
+        "method": a.method,
+        "photos": len(rep["cameras"]),
+        "photo_size": rep["cameras"][0]["size"],
+        "texture": TEXTURE,
+        "iterations": rep["iterations"],
+        "times_s": times,
+        "stages_total_s": sum(times.values()),
+        "process_wall_s": r.wall_s,
+        "peak_mb": r.peak_mb,
+        "target_s": TARGET_S,
+        "solver_info": rep.get("solver_info", {}),
+    }
     with open(a.json, "w") as fh:
         json.dump(result, fh, indent=1)
     print(f"\ncommit {result['commit']}, {result['machine']}, {started}")
-    print(f"{result['photos']} photos of {result['photo_size'][0]}x{result['photo_size'][1]} -> "
-          f"{TEXTURE}^2 texture, method {a.method}, {rep['iterations']} iterations\n")
+    print(
+        f"{result['photos']} photos of {result['photo_size'][0]}x{result['photo_size'][1]} -> "
+        f"{TEXTURE}^2 texture, method {a.method}, {rep['iterations']} iterations\n"
+    )
     print("| " + " | ".join(STAGES) + " | stages total | process (wall) | peak memory |")
     print("|" + "---|" * (len(STAGES) + 3))
-    print("| " + " | ".join(f"{times[k]:.1f} s" for k in STAGES)
-          + f" | {result['stages_total_s']:.1f} s | {r.wall_s:.1f} s | {r.peak_mb:.0f} MB |")
+    print(
+        "| "
+        + " | ".join(f"{times[k]:.1f} s" for k in STAGES)
+        + f" | {result['stages_total_s']:.1f} s | {r.wall_s:.1f} s | {r.peak_mb:.0f} MB |"
+    )
     verdict = "meets" if r.wall_s <= TARGET_S else "misses"
     print(f"\n{verdict} the target of {TARGET_S:.0f} s end to end; wrote {a.json}")
 

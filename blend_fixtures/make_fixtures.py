@@ -19,6 +19,7 @@ Each scene ``<name>`` gives, in ``<out>/<name>/``:
 The functions are importable (``generate(name, out_dir, **overrides)``) so that tests can render a small
 version. Nothing here is random without a fixed seed.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,10 +30,9 @@ import shutil
 import sys
 import time
 
-import numpy as np
-
-import bpy
 import bmesh
+import bpy
+import numpy as np
 from mathutils import Matrix, Vector
 from mathutils.bvhtree import BVHTree
 
@@ -43,9 +43,11 @@ ASSETS = os.path.join(HERE, "assets")
 # Scene definitions
 # --------------------------------------------------------------------------------------------------------------
 
-HDRI_LICENCE = ("CC0, Greg Zaal / Poly Haven, bundled with Blender (datafiles/studiolights/world/license.txt): "
-                "forest=ninomaru_teien, studio=studio_small_01, interior=hotel_room, sunrise=spruit_sunrise, "
-                "courtyard=courtyard, city=portland_landing_pad, sunset=venice_sunset, night=moonless_golf (probably)")
+HDRI_LICENCE = (
+    "CC0, Greg Zaal / Poly Haven, bundled with Blender (datafiles/studiolights/world/license.txt): "
+    "forest=ninomaru_teien, studio=studio_small_01, interior=hotel_room, sunrise=spruit_sunrise, "
+    "courtyard=courtyard, city=portland_landing_pad, sunset=venice_sunset, night=moonless_golf (probably)"
+)
 PHOTO_LICENCES = {
     "chelsea.png": "CC0, photographer Stefan van der Walt (scikit-image data: skimage.data.chelsea)",
     "coffee.png": "CC0, photographer Rachel Michetti (scikit-image data: skimage.data.coffee)",
@@ -54,88 +56,240 @@ PHOTO_LICENCES = {
 SCENES = {
     # (a) the paper's figure 1: Lambertian, piecewise-constant albedo, skydome-like environment light.
     "lambert_sky": dict(
-        resolution=(320, 240), n_cameras=13, samples=48, texture_size=512, seed=1000, film_transparent=True,
+        resolution=(320, 240),
+        n_cameras=13,
+        samples=48,
+        texture_size=512,
+        seed=1000,
+        film_transparent=True,
         view_gt=True,
-        albedo="regions", interpolation="Closest", material="diffuse",
+        albedo="regions",
+        interpolation="Closest",
+        material="diffuse",
         lighting=dict(kind="hdri", hdri=["forest"], strength=1.0, rotation_deg=[0.0]),
-        photo_format="EXR", user_mesh="fine"),
+        photo_format="EXR",
+        user_mesh="fine",
+    ),
     # (b) the paper's figure 2: photographic albedo, partly specular, one extended light with cast shadows.
     "photo_sun": dict(
-        resolution=(480, 360), n_cameras=13, samples=48, texture_size=256, seed=2000,
-        albedo="photo:chelsea.png", interpolation="Linear", material="principled",
-        lighting=dict(kind="sun", sun_strength=4.5, sun_angle_deg=5.0, sun_elevation_deg=50.0,
-                      sun_azimuth_deg=-35.0, hdri=["studio"], strength=0.08, rotation_deg=[0.0]),
-        photo_format="PNG", user_mesh="fine"),
+        resolution=(480, 360),
+        n_cameras=13,
+        samples=48,
+        texture_size=256,
+        seed=2000,
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=4.5,
+            sun_angle_deg=5.0,
+            sun_elevation_deg=50.0,
+            sun_azimuth_deg=-35.0,
+            hdri=["studio"],
+            strength=0.08,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+        user_mesh="fine",
+    ),
     # (c) the paper's figure 5: (b)'s photos, but a smoothed, coarser target mesh with the same UV layout.
     "photo_sun_coarse": dict(base="photo_sun", user_mesh="coarse"),
     # (d) lighting that changes per view (the paper's per-view lighting), JPEG photos.
     "varying_light": dict(
-        resolution=(480, 360), n_cameras=12, samples=48, texture_size=256, seed=4000,
-        albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.6, 0.45],
-                      rotation_step_deg=137.50776405),
-        photo_format="JPEG", user_mesh="fine"),
+        resolution=(480, 360),
+        n_cameras=12,
+        samples=48,
+        texture_size=256,
+        seed=4000,
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="hdri_per_view", hdri=["sunrise", "interior"], strength=[0.6, 0.45], rotation_step_deg=137.50776405
+        ),
+        photo_format="JPEG",
+        user_mesh="fine",
+    ),
     # The scenes below widen the set for choosing defaults by leave-one-scene-out: other meshes with concavities,
     # albedos, HDRIs (with a sun in the map or a sun lamp, or neither) and the faults of real captures. The EXR
     # and PNG ones are 256x192 (rendering noise compresses poorly), the JPEG ones 320x240.
     # (e) torus (hole, inner ring in its own shadow), flat patches, soft environment, EXR with transparent film.
     "torus_patches": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=5000, film_transparent=True,
-        mesh="torus", albedo="patches", interpolation="Closest", material="diffuse",
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=5000,
+        film_transparent=True,
+        mesh="torus",
+        albedo="patches",
+        interpolation="Closest",
+        material="diffuse",
         lighting=dict(kind="hdri", hdri=["courtyard"], strength=0.6, rotation_deg=[60.0]),
-        photo_format="EXR", user_mesh="fine"),
+        photo_format="EXR",
+        user_mesh="fine",
+    ),
     # (f) open bowl (the rim shadows the inside), fine checker, partly specular, sun lamp: lit squares clip in 8 bit.
     "bowl_checker": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=6000,
-        mesh="bowl", albedo="checker", interpolation="Linear", material="principled",
-        lighting=dict(kind="sun", sun_strength=5.0, sun_angle_deg=3.0, sun_elevation_deg=55.0,
-                      sun_azimuth_deg=30.0, hdri=["city"], strength=0.3, rotation_deg=[0.0]),
-        photo_format="PNG", user_mesh="fine"),
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=6000,
+        mesh="bowl",
+        albedo="checker",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=5.0,
+            sun_angle_deg=3.0,
+            sun_elevation_deg=55.0,
+            sun_azimuth_deg=30.0,
+            hdri=["city"],
+            strength=0.3,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+        user_mesh="fine",
+    ),
     # (g) a rock with dents (displaced icosphere), photographic albedo, low warm sun + sunset sky, JPEG q90.
     "rock_photo": dict(
-        resolution=(320, 240), n_cameras=13, samples=32, texture_size=256, seed=7000,
-        mesh="rock", albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="sun", sun_strength=3.0, sun_angle_deg=4.0, sun_elevation_deg=25.0,
-                      sun_azimuth_deg=-60.0, hdri=["sunset"], strength=0.6, rotation_deg=[45.0]),
-        photo_format="JPEG", jpeg_quality=90, user_mesh="fine"),
+        resolution=(320, 240),
+        n_cameras=13,
+        samples=32,
+        texture_size=256,
+        seed=7000,
+        mesh="rock",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=25.0,
+            sun_azimuth_deg=-60.0,
+            hdri=["sunset"],
+            strength=0.6,
+            rotation_deg=[45.0],
+        ),
+        photo_format="JPEG",
+        jpeg_quality=90,
+        user_mesh="fine",
+    ),
     # (h) (g)'s photos with a smoothed, 4x coarser user mesh (same UV islands).
     "rock_coarse": dict(base="rock_photo", user_mesh="coarse"),
     # (i) stairs (cast shadows of each step on the next), fine noise albedo, sun lamp + night sky, EXR.
     "stairs_noise": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=8000, film_transparent=True,
-        mesh="stairs", albedo="noise", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="sun", sun_strength=3.0, sun_angle_deg=2.0, sun_elevation_deg=40.0,
-                      sun_azimuth_deg=125.0, hdri=["night"], strength=1.5, rotation_deg=[0.0]),
-        photo_format="EXR", user_mesh="fine"),
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=8000,
+        film_transparent=True,
+        mesh="stairs",
+        albedo="noise",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=2.0,
+            sun_elevation_deg=40.0,
+            sun_azimuth_deg=125.0,
+            hdri=["night"],
+            strength=1.5,
+            rotation_deg=[0.0],
+        ),
+        photo_format="EXR",
+        user_mesh="fine",
+    ),
     # (j) Suzanne under the studio HDRI, 8-bit PNG with per-photo exposure and white balance.
     "suzanne_exposure": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=9000,
-        albedo="photo:chelsea.png", interpolation="Linear", material="diffuse",
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=9000,
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="diffuse",
         lighting=dict(kind="hdri", hdri=["studio"], strength=1.2, rotation_deg=[200.0]),
-        photo_format="PNG", user_mesh="fine", capture=dict(exposure_ev=0.5, white_balance=0.10)),
+        photo_format="PNG",
+        user_mesh="fine",
+        capture=dict(exposure_ev=0.5, white_balance=0.10),
+    ),
     # (k) torus, photographic albedo, lighting varying per photo: the sun lamp moves, the sky turns. EXR.
     "torus_varying_sun": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=10000, film_transparent=True,
-        mesh="torus", albedo="photo:chelsea.png", interpolation="Linear", material="diffuse",
-        lighting=dict(kind="sun_per_view", sun_strength=3.0, sun_angle_deg=5.0, sun_elevation_deg=[30.0, 60.0],
-                      sun_azimuth_deg=0.0, sun_azimuth_step_deg=137.50776405, hdri=["sunrise"], strength=0.5,
-                      rotation_step_deg=97.0),
-        photo_format="EXR", user_mesh="fine"),
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=10000,
+        film_transparent=True,
+        mesh="torus",
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun_per_view",
+            sun_strength=3.0,
+            sun_angle_deg=5.0,
+            sun_elevation_deg=[30.0, 60.0],
+            sun_azimuth_deg=0.0,
+            sun_azimuth_step_deg=137.50776405,
+            hdri=["sunrise"],
+            strength=0.5,
+            rotation_step_deg=97.0,
+        ),
+        photo_format="EXR",
+        user_mesh="fine",
+    ),
     # (l) bowl, photographic albedo, HDRI with the sun in the map, PNG; the user's cameras are ~1 px off.
     "bowl_jitter": dict(
-        resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, seed=11000,
-        mesh="bowl", albedo="photo:coffee.png", interpolation="Linear", material="diffuse",
+        resolution=(256, 192),
+        n_cameras=12,
+        samples=32,
+        texture_size=256,
+        seed=11000,
+        mesh="bowl",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
         lighting=dict(kind="hdri", hdri=["city"], strength=0.8, rotation_deg=[130.0]),
-        photo_format="PNG", user_mesh="fine", capture=dict(jitter_px=1.0)),
+        photo_format="PNG",
+        user_mesh="fine",
+        capture=dict(jitter_px=1.0),
+    ),
     # (m) a real capture: stairs, patches, partly specular, sun + courtyard; JPEG q85 with the background,
     # per-photo exposure and white balance, 8-bit clipping, cameras ~1 px off.
     "stairs_capture": dict(
-        resolution=(320, 240), n_cameras=13, samples=32, texture_size=256, seed=12000,
-        mesh="stairs", albedo="patches", interpolation="Closest", material="principled",
-        lighting=dict(kind="sun", sun_strength=2.5, sun_angle_deg=3.0, sun_elevation_deg=50.0,
-                      sun_azimuth_deg=-140.0, hdri=["courtyard"], strength=0.3, rotation_deg=[300.0]),
-        photo_format="JPEG", jpeg_quality=85, user_mesh="fine",
-        capture=dict(exposure_ev=0.5, white_balance=0.10, jitter_px=1.0)),
+        resolution=(320, 240),
+        n_cameras=13,
+        samples=32,
+        texture_size=256,
+        seed=12000,
+        mesh="stairs",
+        albedo="patches",
+        interpolation="Closest",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=2.5,
+            sun_angle_deg=3.0,
+            sun_elevation_deg=50.0,
+            sun_azimuth_deg=-140.0,
+            hdri=["courtyard"],
+            strength=0.3,
+            rotation_deg=[300.0],
+        ),
+        photo_format="JPEG",
+        jpeg_quality=85,
+        user_mesh="fine",
+        capture=dict(exposure_ev=0.5, white_balance=0.10, jitter_px=1.0),
+    ),
 }
 
 # Piecewise-constant albedo of lambert_sky, linear Rec.709 (regions are defined on the surface, in 3D).
@@ -147,26 +301,42 @@ REGION_ALBEDO = {
     "plinth": (0.40, 0.42, 0.45),
 }
 PLINTH_ALBEDO_PHOTO = (0.35, 0.37, 0.40)
-PHOTO_ALBEDO_SCALE = 0.85          # albedo = scale * srgb_to_linear(photo), so that albedo < 1
+PHOTO_ALBEDO_SCALE = 0.85  # albedo = scale * srgb_to_linear(photo), so that albedo < 1
 CAMERA_LENSES_MM = (35.0, 42.0, 50.0, 60.0)
 SENSOR_WIDTH_MM = 36.0
 MESH_OBJECT = "Subject"
-UV_ANGLE_LIMIT_DEG = 55.0   # 66 (the default) gave folded, overlapping islands on this mesh
+UV_ANGLE_LIMIT_DEG = 55.0  # 66 (the default) gave folded, overlapping islands on this mesh
 UV_ISLAND_MARGIN = 0.01
 COARSE_SMOOTH = dict(factor=0.5, repeat=10)
-COARSE_SMOOTH_ROCK = dict(factor=0.5, repeat=3)   # the rock has no plinth; more passes flatten its dents
+COARSE_SMOOTH_ROCK = dict(factor=0.5, repeat=3)  # the rock has no plinth; more passes flatten its dents
 # Generated albedos (linear Rec.709), for the meshes other than Suzanne.
-PATCH_COUNT = 14                   # Voronoi cells of seeded points in the object's bounding box
+PATCH_COUNT = 14  # Voronoi cells of seeded points in the object's bounding box
 CHECKER = dict(cell_m=0.08, colours=((0.72, 0.68, 0.60), (0.10, 0.14, 0.24)))
 NOISE = dict(base_per_m=5.0, octaves=3, gain=0.75, colours=((0.62, 0.48, 0.30), (0.20, 0.30, 0.22), (0.75, 0.74, 0.70)))
 
 RENDER_COMMON = dict(
-    engine="CYCLES", device="CPU", use_adaptive_sampling=False, use_denoising=False,
-    max_bounces=6, diffuse_bounces=3, glossy_bounces=3, transmission_bounces=2, transparent_max_bounces=4,
-    sample_clamp_direct=0.0, sample_clamp_indirect=3.0, caustics_reflective=False, caustics_refractive=False,
-    blur_glossy=1.0, use_light_tree=False,
-    pixel_filter_type="BLACKMAN_HARRIS", filter_width=1.5,
-    view_transform="Standard", look="None", exposure=0.0, gamma=1.0, display_device="sRGB",
+    engine="CYCLES",
+    device="CPU",
+    use_adaptive_sampling=False,
+    use_denoising=False,
+    max_bounces=6,
+    diffuse_bounces=3,
+    glossy_bounces=3,
+    transmission_bounces=2,
+    transparent_max_bounces=4,
+    sample_clamp_direct=0.0,
+    sample_clamp_indirect=3.0,
+    caustics_reflective=False,
+    caustics_refractive=False,
+    blur_glossy=1.0,
+    use_light_tree=False,
+    pixel_filter_type="BLACKMAN_HARRIS",
+    filter_width=1.5,
+    view_transform="Standard",
+    look="None",
+    exposure=0.0,
+    gamma=1.0,
+    display_device="sRGB",
     dither_intensity=0.0,
 )
 
@@ -193,6 +363,7 @@ def log(*a):
 # Small helpers
 # --------------------------------------------------------------------------------------------------------------
 
+
 def srgb_to_linear(c):
     c = np.asarray(c, dtype=np.float64)
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -210,6 +381,7 @@ def hdri_path(name):
 def write_exr_rgba(path, rgba, half=True):
     """Write (H, W, 4) as RGBA, or (H, W, 3) as RGB."""
     import OpenEXR
+
     arr = np.ascontiguousarray(rgba, dtype=np.float16 if half else np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     OpenEXR.File(header, {"RGBA" if arr.shape[-1] == 4 else "RGB": arr}).write(path)
@@ -218,6 +390,7 @@ def write_exr_rgba(path, rgba, half=True):
 def read_exr(path):
     """Read an EXR (single part) as float32 (H, W, C), row 0 = top, channels in RGBA order."""
     import OpenEXR
+
     with OpenEXR.File(path) as f:
         ch = f.channels()
         if "RGBA" in ch:
@@ -234,7 +407,7 @@ def load_png_linear(path):
     w, h = img.size
     px = np.empty(w * h * img.channels, dtype=np.float32)
     img.pixels.foreach_get(px)
-    px = px.reshape(h, w, img.channels)[::-1, :, :3]   # Image.pixels row 0 is the bottom; code/255 for 8 bit
+    px = px.reshape(h, w, img.channels)[::-1, :, :3]  # Image.pixels row 0 is the bottom; code/255 for 8 bit
     bpy.data.images.remove(img)
     return srgb_to_linear(px)
 
@@ -252,13 +425,19 @@ def mesh_arrays(mesh):
     mesh.uv_layers.active.data.foreach_get("uv", uv)
     ev = np.empty(len(mesh.edges) * 2, dtype=np.int64)
     mesh.edges.foreach_get("vertices", ev)
-    return dict(co=co.reshape(-1, 3), uv=uv.reshape(-1, 2), tri_loops=tri_loops.reshape(-1, 3),
-                tri_verts=tri_verts.reshape(-1, 3), edges=ev.reshape(-1, 2))
+    return dict(
+        co=co.reshape(-1, 3),
+        uv=uv.reshape(-1, 2),
+        tri_loops=tri_loops.reshape(-1, 3),
+        tri_verts=tri_verts.reshape(-1, 3),
+        edges=ev.reshape(-1, 2),
+    )
 
 
 def components(n_verts, edges):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+
     a = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_verts, n_verts))
     return connected_components(a, directed=False)[1]
 
@@ -266,6 +445,7 @@ def components(n_verts, edges):
 # --------------------------------------------------------------------------------------------------------------
 # Geometry: Suzanne (Catmull-Clark) on a plinth, one object, one non-overlapping UV map
 # --------------------------------------------------------------------------------------------------------------
+
 
 def _mesh_from_bmesh(name, bm):
     me = bpy.data.meshes.new(name)
@@ -312,8 +492,16 @@ def build_meshes():
     r = 0.75
     depth = 0.30
     top = zmin - 0.06
-    geom = bmesh.ops.create_cone(bm, cap_ends=True, cap_tris=False, segments=32, radius1=r, radius2=r,
-                                 depth=depth, matrix=Matrix.Translation((0.0, -0.05, top - depth / 2)))
+    geom = bmesh.ops.create_cone(
+        bm,
+        cap_ends=True,
+        cap_tris=False,
+        segments=32,
+        radius1=r,
+        radius2=r,
+        depth=depth,
+        matrix=Matrix.Translation((0.0, -0.05, top - depth / 2)),
+    )
     plinth_verts = set(geom["verts"])
     # Split the ngon caps into quads around a centre vertex (poke) so that subdivision is regular.
     caps = [f for f in bm.faces if len(f.verts) > 4 and all(v in plinth_verts for v in f.verts)]
@@ -335,8 +523,8 @@ def build_meshes():
             me.attributes.remove(me.attributes["crease_edge"])
     info = dict(
         description="Suzanne (bmesh create_monkey, Catmull-Clark once) on a 32-sided prism plinth, joined; UV "
-                    "by Smart UV Project on that level; the fine mesh is that subdivided once more "
-                    "(Catmull-Clark, plinth fully creased, UV smoothing 'NONE', so the UV islands are identical)",
+        "by Smart UV Project on that level; the fine mesh is that subdivided once more "
+        "(Catmull-Clark, plinth fully creased, UV smoothing 'NONE', so the UV islands are identical)",
         smart_uv_project={k: (round(math.degrees(v), 3) if k == "angle_limit" else v) for k, v in uv_params.items()},
         plinth=dict(radius=r, depth=depth, top_z=top, centre_y=-0.05, segments=32),
     )
@@ -345,14 +533,19 @@ def build_meshes():
 
 def smart_uv(me):
     """Smart UV Project on ``me`` in place, as the map ``UVMap``; returns the operator's parameters."""
-    obj = bpy.data.objects.new("_tmp_uv", me)      # the operator needs the object in edit mode
+    obj = bpy.data.objects.new("_tmp_uv", me)  # the operator needs the object in edit mode
     bpy.context.scene.collection.objects.link(obj)
     bpy.context.view_layer.objects.active = obj
     obj.select_set(True)
     bpy.ops.object.mode_set(mode="EDIT")
     bpy.ops.mesh.select_all(action="SELECT")
-    uv_params = dict(angle_limit=math.radians(UV_ANGLE_LIMIT_DEG), island_margin=UV_ISLAND_MARGIN, area_weight=0.0,
-                     correct_aspect=True, scale_to_bounds=False)
+    uv_params = dict(
+        angle_limit=math.radians(UV_ANGLE_LIMIT_DEG),
+        island_margin=UV_ISLAND_MARGIN,
+        area_weight=0.0,
+        correct_aspect=True,
+        scale_to_bounds=False,
+    )
     bpy.ops.uv.smart_project(**uv_params)
     bpy.ops.object.mode_set(mode="OBJECT")
     bpy.data.objects.remove(obj)
@@ -374,8 +567,9 @@ def make_coarse(mid, fine, smooth=COARSE_SMOOTH, keep_plinth=True):
     plinth_label = comp[np.argmin(co[:, 2])] if keep_plinth else -1
     verts = [v for v in bm.verts if comp[v.index] != plinth_label]
     for _ in range(smooth["repeat"]):
-        bmesh.ops.smooth_vert(bm, verts=verts, factor=smooth["factor"],
-                              use_axis_x=True, use_axis_y=True, use_axis_z=True)
+        bmesh.ops.smooth_vert(
+            bm, verts=verts, factor=smooth["factor"], use_axis_x=True, use_axis_y=True, use_axis_z=True
+        )
     bm.to_mesh(coarse)
     bm.free()
     # Distance of the coarse vertices to the fine surface.
@@ -398,7 +592,7 @@ def _revolve(name, profile, n_seg, closed, margin=0.01):
     k_n = len(profile)
     seg = np.diff(np.vstack([profile, profile[:1]]) if closed else profile, axis=0)
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
-    tv = arc / arc[-1]                                   # k_n (+1 if closed) values in [0, 1]
+    tv = arc / arc[-1]  # k_n (+1 if closed) values in [0, 1]
     pole = profile[:, 0] <= 1e-9
     half = n_seg // 2
     bm = bmesh.new()
@@ -408,21 +602,29 @@ def _revolve(name, profile, n_seg, closed, margin=0.01):
             v = bm.verts.new((0.0, 0.0, z))
             ring.append([v] * n_seg)
         else:
-            ring.append([bm.verts.new((r * math.cos(2 * math.pi * j / n_seg), r * math.sin(2 * math.pi * j / n_seg), z))
-                         for j in range(n_seg)])
+            ring.append(
+                [
+                    bm.verts.new((r * math.cos(2 * math.pi * j / n_seg), r * math.sin(2 * math.pi * j / n_seg), z))
+                    for j in range(n_seg)
+                ]
+            )
     uv_of = {}
     for k in range(k_n if closed else k_n - 1):
         k2 = (k + 1) % k_n
         for j in range(n_seg):
             h, jl = divmod(j, half)
-            corners = [(k, j, jl, tv[k]), (k, (j + 1) % n_seg, jl + 1, tv[k]),
-                       (k2, (j + 1) % n_seg, jl + 1, tv[k + 1]), (k2, j, jl, tv[k + 1])]
+            corners = [
+                (k, j, jl, tv[k]),
+                (k, (j + 1) % n_seg, jl + 1, tv[k]),
+                (k2, (j + 1) % n_seg, jl + 1, tv[k + 1]),
+                (k2, j, jl, tv[k + 1]),
+            ]
             verts, uvs = [], []
             for kk, jj, ul, t in corners:
                 v = ring[kk][jj]
                 if v in verts:
                     continue
-                u = ul if not pole[kk] else jl + 0.5          # a pole's corner sits mid-segment
+                u = ul if not pole[kk] else jl + 0.5  # a pole's corner sits mid-segment
                 verts.append(v)
                 uvs.append((margin + (1 - 2 * margin) * u / half, 0.5 * h + margin + (0.5 - 2 * margin) * t))
             f = bm.faces.new(verts)
@@ -445,21 +647,27 @@ def build_torus():
     a = 2 * math.pi * np.arange(n_ring) / n_ring
     me = _revolve("torus", np.stack([big + small * np.cos(a), small * np.sin(a)], axis=1), n_seg, closed=True)
     _transform(me, Matrix.Rotation(math.radians(tilt), 4, "X"))
-    return me, None, dict(
-        description="torus (major radius %.2f m, minor %.2f m, %d x %d quads) tilted %.0f deg about X; UV: two "
-                    "islands (the halves of the turn), u along the turn, v around the tube" % (big, small, n_seg,
-                                                                                            n_ring, tilt),
-        uv="parametric, two islands, margin 0.01")
+    return (
+        me,
+        None,
+        dict(
+            description="torus (major radius %.2f m, minor %.2f m, %d x %d quads) tilted %.0f deg about X; UV: two "
+            "islands (the halves of the turn), u along the turn, v around the tube" % (big, small, n_seg, n_ring, tilt),
+            uv="parametric, two islands, margin 0.01",
+        ),
+    )
 
 
 def build_bowl():
     """A thick-walled open bowl (quarter-ellipse walls, rounded rim), tilted towards -Y."""
+
     def arc_pts(f, a0, a1, step=0.035):
         ts = np.linspace(a0, a1, 400)
         p = np.array([f(t) for t in ts])
         d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
         m = max(2, int(round(d[-1] / step)) + 1)
         return np.array([np.interp(np.linspace(0, d[-1], m), d, p[:, c]) for c in range(2)]).T
+
     outer_bottom = arc_pts(lambda t: (t, 0.0), 0.0, 0.30)
     outer = arc_pts(lambda t: (0.30 + 0.60 * math.sin(t), 0.65 * (1 - math.cos(t))), 0.0, math.pi / 2)
     rim = arc_pts(lambda t: (0.87 + 0.03 * math.cos(t), 0.65 + 0.03 * math.sin(t)), 0.0, math.pi, step=0.02)
@@ -469,13 +677,18 @@ def build_bowl():
     tilt = 25.0
     me = _revolve("bowl", prof, 64, closed=False)
     _transform(me, Matrix.Rotation(math.radians(tilt), 4, "X") @ Matrix.Translation((0.0, 0.0, -0.33)))
-    return me, None, dict(
-        description="open bowl: surface of revolution of a profile (outer bottom, quarter-ellipse outer wall to "
-                    "radius 0.9 m, rounded rim, inner wall, inner bottom; wall 0.03-0.07 m thick; %d profile "
-                    "points, 64 segments, poles at the two bottom centres), tilted %.0f deg about X so that it "
-                    "opens towards -Y; UV: two islands (the halves of the turn), u along the turn, v along the "
-                    "profile by arc length" % (len(prof), tilt),
-        uv="parametric, two islands, margin 0.01")
+    return (
+        me,
+        None,
+        dict(
+            description="open bowl: surface of revolution of a profile (outer bottom, quarter-ellipse outer wall to "
+            "radius 0.9 m, rounded rim, inner wall, inner bottom; wall 0.03-0.07 m thick; %d profile "
+            "points, 64 segments, poles at the two bottom centres), tilted %.0f deg about X so that it "
+            "opens towards -Y; UV: two islands (the halves of the turn), u along the turn, v along the "
+            "profile by arc length" % (len(prof), tilt),
+            uv="parametric, two islands, margin 0.01",
+        ),
+    )
 
 
 ROCK_SEED = 77
@@ -496,19 +709,26 @@ def build_rock():
     dents /= np.linalg.norm(dents, axis=1, keepdims=True)
     for c in dents:
         ang = np.arccos(np.clip(d @ c, -1, 1))
-        r -= 0.28 * np.exp(-(ang / 0.35) ** 2)
+        r -= 0.28 * np.exp(-((ang / 0.35) ** 2))
     for v, dv, rv in zip(bm.verts, d, r):
         v.co = Vector((0.8 * rv * dv[0], 0.8 * rv * dv[1], 0.6 * rv * dv[2]))
     mid = _mesh_from_bmesh("mid", bm)
     uv_params = smart_uv(mid)
     fine = _apply_subsurf(mid, 1, uv_smooth="NONE")
     fine.name = "fine"
-    return fine, mid, dict(
-        description="rock: icosphere (bmesh subdivisions=4: 1280 triangles) displaced radially by 6 random sinusoids "
-                    "(amplitude 0.07) and 3 Gaussian dents (depth 0.28, width 0.35 rad), scaled (0.8, 0.8, 0.6) m, "
-                    "seed %d; UV by Smart UV Project on that level; the fine mesh is that subdivided once "
-                    "(Catmull-Clark, UV smoothing 'NONE', so the UV islands are identical)" % ROCK_SEED,
-        smart_uv_project={k: (round(math.degrees(v), 3) if k == "angle_limit" else v) for k, v in uv_params.items()})
+    return (
+        fine,
+        mid,
+        dict(
+            description="rock: icosphere (bmesh subdivisions=4: 1280 triangles) displaced radially by 6 random "
+            "sinusoids (amplitude 0.07) and 3 Gaussian dents (depth 0.28, width 0.35 rad), scaled (0.8, 0.8, 0.6) m, "
+            "seed %d; UV by Smart UV Project on that level; the fine mesh is that subdivided once "
+            "(Catmull-Clark, UV smoothing 'NONE', so the UV islands are identical)" % ROCK_SEED,
+            smart_uv_project={
+                k: (round(math.degrees(v), 3) if k == "angle_limit" else v) for k, v in uv_params.items()
+            },
+        ),
+    )
 
 
 def planar_islands(me, margin=0.01):
@@ -579,12 +799,17 @@ def build_stairs():
         bm.faces.new([near[j], near[i], far[i], far[j]])
     me = _mesh_from_bmesh("stairs", bm)
     uv = planar_islands(me)
-    return me, None, dict(
-        description="stairs: 4 steps (runs %s m, rises %s m from the bottom), the stair profile in XZ extruded 1 m "
-                    "along Y, the far side (y = +0.5) scaled by %.2f in X; %d flat faces, the two sides concave "
-                    "ngons; UV: one island per face (planar_islands)" % (list(runs), list(rises), taper,
-                                                                         len(me.polygons)),
-        profile_xz=[list(p) for p in prof], uv=uv)
+    return (
+        me,
+        None,
+        dict(
+            description="stairs: 4 steps (runs %s m, rises %s m from the bottom), the stair profile in XZ extruded 1 m "
+            "along Y, the far side (y = +0.5) scaled by %.2f in X; %d flat faces, the two sides concave "
+            "ngons; UV: one island per face (planar_islands)" % (list(runs), list(rises), taper, len(me.polygons)),
+            profile_xz=[list(p) for p in prof],
+            uv=uv,
+        ),
+    )
 
 
 def build_mesh(kind):
@@ -605,14 +830,15 @@ def finish_shading(me):
 # UV-space rasterisation and ground-truth albedo
 # --------------------------------------------------------------------------------------------------------------
 
+
 def rasterise_uv(mesh, n):
     """World position, triangle and coverage count of every texel centre of an n x n texture.
 
     Texel (r, c) has its centre at u = (c + 0.5) / n, v = 1 - (r + 0.5) / n (row 0 = top).
     """
     a = mesh_arrays(mesh)
-    tuv = a["uv"][a["tri_loops"]]              # (T, 3, 2)
-    tco = a["co"][a["tri_verts"]]              # (T, 3, 3)
+    tuv = a["uv"][a["tri_loops"]]  # (T, 3, 2)
+    tco = a["co"][a["tri_verts"]]  # (T, 3, 3)
     px = np.stack([tuv[..., 0] * n - 0.5, (1.0 - tuv[..., 1]) * n - 0.5], axis=-1)  # (col, row) coords
     pos = np.full((n, n, 3), np.nan)
     tri = np.full((n, n), -1, dtype=np.int64)
@@ -661,6 +887,7 @@ def part_labels(a):
 def fill_padding(img, inside):
     """Fill texels outside every UV triangle with the value of the nearest inside texel."""
     from scipy.ndimage import distance_transform_edt
+
     idx = distance_transform_edt(~inside, return_distances=False, return_indices=True)
     return img[idx[0], idx[1]]
 
@@ -668,13 +895,14 @@ def fill_padding(img, inside):
 def _fbm(p, lo, base, octaves, gain, seed):
     """Value noise in 3D: seeded random lattices, cubic-spline interpolated, octaves at doubling frequencies."""
     from scipy.ndimage import map_coordinates
+
     rng = np.random.default_rng(seed)
     out = np.zeros(len(p))
     for o in range(octaves):
-        freq = base * 2 ** o
+        freq = base * 2**o
         q = (p - lo) * freq + 2.0
         lattice = rng.standard_normal(tuple(int(math.ceil(e)) + 4 for e in q.max(axis=0)))
-        out += gain ** o * map_coordinates(lattice, q.T, order=3, mode="nearest")
+        out += gain**o * map_coordinates(lattice, q.T, order=3, mode="nearest")
     return (out - out.mean()) / out.std()
 
 
@@ -691,14 +919,18 @@ def generated_albedo(kind, pos, co, seed):
         cell = np.argmin(((pos[:, None, :] - sites[None]) ** 2).sum(axis=2), axis=1)
         return colours[cell], dict(
             kind="piecewise constant: Voronoi cells of %d seeded sites in the mesh's bounding box (3D, object space), "
-                 "one uniform random colour in [0.05, 0.8]^3 each" % PATCH_COUNT,
-            sites=sites.tolist(), colours=colours.tolist())
+            "one uniform random colour in [0.05, 0.8]^3 each" % PATCH_COUNT,
+            sites=sites.tolist(),
+            colours=colours.tolist(),
+        )
     if kind == "checker":
         c0, c1 = (np.array(c) for c in CHECKER["colours"])
         odd = (np.floor(pos / CHECKER["cell_m"]).astype(np.int64).sum(axis=1) % 2).astype(bool)
         return np.where(odd[:, None], c1, c0), dict(
-            kind="3D checker (object space): parity of floor(x/s) + floor(y/s) + floor(z/s), s = %.2f m, two "
-                 "colours" % CHECKER["cell_m"], colours=[list(c) for c in CHECKER["colours"]])
+            kind="3D checker (object space): parity of floor(x/s) + floor(y/s) + floor(z/s), s = {:.2f} m, two "
+            "colours".format(CHECKER["cell_m"]),
+            colours=[list(c) for c in CHECKER["colours"]],
+        )
     if kind == "noise":
         c = [np.array(x) for x in NOISE["colours"]]
         f1 = _fbm(pos, lo, NOISE["base_per_m"], NOISE["octaves"], NOISE["gain"], seed + 1)
@@ -707,25 +939,32 @@ def generated_albedo(kind, pos, co, seed):
         b = np.clip(2.5 * (f2 - 0.8), 0, 1)[:, None]
         return ((1 - a) * c[0] + a * c[1]) * (1 - b) + b * c[2], dict(
             kind="fine procedural noise: two value-noise fields f1, f2 (3D, object space; %d octaves from %.1f "
-                 "lattice cells/m, each doubling, amplitude x %.2f; normalised to mean 0, sd 1); a = clip(0.5 + "
-                 "0.35 f1), b = clip(2.5 (f2 - 0.8)); albedo = mix(mix(c0, c1, a), c2, b)"
-                 % (NOISE["octaves"], NOISE["base_per_m"], NOISE["gain"]),
-            colours=[list(x) for x in NOISE["colours"]])
+            "lattice cells/m, each doubling, amplitude x %.2f; normalised to mean 0, sd 1); a = clip(0.5 + "
+            "0.35 f1), b = clip(2.5 (f2 - 0.8)); albedo = mix(mix(c0, c1, a), c2, b)"
+            % (NOISE["octaves"], NOISE["base_per_m"], NOISE["gain"]),
+            colours=[list(x) for x in NOISE["colours"]],
+        )
     if kind.startswith("photo:"):
         from scipy.ndimage import map_coordinates
+
         fname = kind.split(":", 1)[1]
         photo = load_png_linear(os.path.join(ASSETS, fname)) * PHOTO_ALBEDO_SCALE
         ph, pw = photo.shape[:2]
         d = pos - 0.5 * (lo + hi)
-        s = np.abs(np.arctan2(d[:, 0], -d[:, 1])) / np.pi       # mirrored about the front: continuous all around
+        s = np.abs(np.arctan2(d[:, 0], -d[:, 1])) / np.pi  # mirrored about the front: continuous all around
         t = np.arccos(np.clip(d[:, 2] / np.maximum(np.linalg.norm(d, axis=1), 1e-12), -1, 1)) / np.pi
-        rgb = np.stack([map_coordinates(photo[..., ch], [t * (ph - 1), s * (pw - 1)], order=1, mode="nearest")
-                        for ch in range(3)], axis=1)
+        rgb = np.stack(
+            [map_coordinates(photo[..., ch], [t * (ph - 1), s * (pw - 1)], order=1, mode="nearest") for ch in range(3)],
+            axis=1,
+        )
         return rgb, dict(
             kind="photograph, mirrored spherical projection about the bounding-box centre: s = |atan2(x-cx, "
-                 "-(y-cy))|/pi -> photo column s*(W-1), t = polar angle from +Z / pi -> photo row t*(H-1), "
-                 "bilinear; albedo = %.2f * srgb_to_linear(photo)" % PHOTO_ALBEDO_SCALE,
-            photo=fname, photo_licence=PHOTO_LICENCES[fname], photo_albedo_scale=PHOTO_ALBEDO_SCALE)
+            "-(y-cy))|/pi -> photo column s*(W-1), t = polar angle from +Z / pi -> photo row t*(H-1), "
+            f"bilinear; albedo = {PHOTO_ALBEDO_SCALE:.2f} * srgb_to_linear(photo)",
+            photo=fname,
+            photo_licence=PHOTO_LICENCES[fname],
+            photo_albedo_scale=PHOTO_ALBEDO_SCALE,
+        )
     raise ValueError(kind)
 
 
@@ -750,10 +989,12 @@ def ground_truth_albedo(mesh, n, albedo_spec, mesh_kind="suzanne", seed=0):
         face = head & ~ears & ~cap
         for name, m in (("face", face), ("cap", cap), ("ears", ears), ("eyes", part == 1), ("plinth", part == 2)):
             rgb[m] = REGION_ALBEDO[name]
-        info = dict(kind="piecewise constant, regions defined on the surface in 3D (object space, metres): "
-                         "plinth = plinth component; eyes = Suzanne's two eye components; ears = head & |x| > 0.98; "
-                         "cap = head & not ears & z > 0.30 + 0.12|x|; face = rest of the head",
-                    regions={k: list(v) for k, v in REGION_ALBEDO.items()})
+        info = dict(
+            kind="piecewise constant, regions defined on the surface in 3D (object space, metres): "
+            "plinth = plinth component; eyes = Suzanne's two eye components; ears = head & |x| > 0.98; "
+            "cap = head & not ears & z > 0.30 + 0.12|x|; face = rest of the head",
+            regions={k: list(v) for k, v in REGION_ALBEDO.items()},
+        )
     elif albedo_spec.startswith("photo:"):
         fname = albedo_spec.split(":", 1)[1]
         photo = load_png_linear(os.path.join(ASSETS, fname)) * PHOTO_ALBEDO_SCALE
@@ -761,22 +1002,26 @@ def ground_truth_albedo(mesh, n, albedo_spec, mesh_kind="suzanne", seed=0):
         lo, hi = hco.min(axis=0), hco.max(axis=0)
         cx, cy = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])
         m = part <= 1
-        theta = np.arctan2(pos[..., 0] - cx, -(pos[..., 1] - cy))      # 0 at the front (-Y), +-pi at the back
-        s = np.abs(theta) / np.pi                                       # mirrored: continuous all around
+        theta = np.arctan2(pos[..., 0] - cx, -(pos[..., 1] - cy))  # 0 at the front (-Y), +-pi at the back
+        s = np.abs(theta) / np.pi  # mirrored: continuous all around
         t = (hi[2] - pos[..., 2]) / (hi[2] - lo[2])
         from scipy.ndimage import map_coordinates
+
         rows = np.clip(t[m], 0, 1) * (ph - 1)
         cols = np.clip(s[m], 0, 1) * (pw - 1)
         for ch in range(3):
             rgb[m, ch] = map_coordinates(photo[..., ch], [rows, cols], order=1, mode="nearest")
         rgb[part == 2] = PLINTH_ALBEDO_PHOTO
-        info = dict(kind="photograph projected on the head (and eyes): mirrored cylindrical projection about the "
-                         "vertical axis through the head's bounding-box centre, s = |atan2(x-cx, -(y-cy))|/pi -> "
-                         "photo column s*(W-1) (front = left edge, back = right edge), t = (zmax - z)/(zmax - zmin) -> "
-                         "photo row t*(H-1), bilinear; albedo = %.2f * srgb_to_linear(photo); plinth uniform"
-                         % PHOTO_ALBEDO_SCALE,
-                    photo=fname, photo_licence=PHOTO_LICENCES[fname], photo_albedo_scale=PHOTO_ALBEDO_SCALE,
-                    plinth=list(PLINTH_ALBEDO_PHOTO))
+        info = dict(
+            kind="photograph projected on the head (and eyes): mirrored cylindrical projection about the "
+            "vertical axis through the head's bounding-box centre, s = |atan2(x-cx, -(y-cy))|/pi -> "
+            "photo column s*(W-1) (front = left edge, back = right edge), t = (zmax - z)/(zmax - zmin) -> "
+            f"photo row t*(H-1), bilinear; albedo = {PHOTO_ALBEDO_SCALE:.2f} * srgb_to_linear(photo); plinth uniform",
+            photo=fname,
+            photo_licence=PHOTO_LICENCES[fname],
+            photo_albedo_scale=PHOTO_ALBEDO_SCALE,
+            plinth=list(PLINTH_ALBEDO_PHOTO),
+        )
     else:
         raise ValueError(albedo_spec)
     return _finish_albedo(rgb, inside, overlap, info)
@@ -794,6 +1039,7 @@ def _finish_albedo(rgb, inside, overlap, info):
 # --------------------------------------------------------------------------------------------------------------
 # Cameras, lighting, materials
 # --------------------------------------------------------------------------------------------------------------
+
 
 def look_at(eye, target, roll_deg=0.0):
     eye, target = Vector(eye), Vector(target)
@@ -820,8 +1066,15 @@ def place_cameras(n, resolution, centre, radius, seed):
             a, e = math.radians(az), math.radians(el)
             eye = Vector(centre) + dist * Vector((math.sin(a) * math.cos(e), -math.cos(a) * math.cos(e), math.sin(e)))
             target = Vector(centre) + Vector(rng.uniform(-0.05, 0.05, 3) * radius)
-            cams.append(dict(azimuth_deg=az, elevation_deg=el, lens_mm=lens, distance=dist,
-                             matrix_world=look_at(eye, target, rng.uniform(-3, 3))))
+            cams.append(
+                dict(
+                    azimuth_deg=az,
+                    elevation_deg=el,
+                    lens_mm=lens,
+                    distance=dist,
+                    matrix_world=look_at(eye, target, rng.uniform(-3, 3)),
+                )
+            )
     return cams
 
 
@@ -848,8 +1101,13 @@ def jitter_camera(mw, k_core, w, h, px, co, rng):
     depth = float(np.linalg.norm(co.mean(axis=0) - np.array(mw.translation)))
     t = rng.normal(size=3)
     t *= 0.3 * px * depth / fx / np.linalg.norm(t)
-    user = mw @ Matrix.Translation(Vector(t)) @ Matrix.Rotation(rx, 4, "X") @ Matrix.Rotation(ry, 4, "Y") \
+    user = (
+        mw
+        @ Matrix.Translation(Vector(t))
+        @ Matrix.Rotation(rx, 4, "X")
+        @ Matrix.Rotation(ry, 4, "Y")
         @ Matrix.Rotation(roll, 4, "Z")
+    )
     k = np.array(k_core)
     xy = []
     for m in (mw, user):
@@ -858,10 +1116,16 @@ def jitter_camera(mw, k_core, w, h, px, co, rng):
         q = pc @ k.T
         xy.append(q[:, :2] / q[:, 2:])
     d = np.linalg.norm(xy[1] - xy[0], axis=1)
-    return user, dict(rotation_x_rad=rx, rotation_y_rad=ry, roll_rad=roll, translation_camera_m=t.tolist(),
-                      note="user camera = render camera @ Translation(t) @ Rx @ Ry @ Rz (camera-local axes)",
-                      reprojection_px=dict(mean=float(d.mean()), max=float(d.max()),
-                                           over="all mesh vertices, render camera vs user camera"))
+    return user, dict(
+        rotation_x_rad=rx,
+        rotation_y_rad=ry,
+        roll_rad=roll,
+        translation_camera_m=t.tolist(),
+        note="user camera = render camera @ Translation(t) @ Rx @ Ry @ Rz (camera-local axes)",
+        reprojection_px=dict(
+            mean=float(d.mean()), max=float(d.max()), over="all mesh vertices, render camera vs user camera"
+        ),
+    )
 
 
 def sun_direction(elevation_deg, azimuth_deg):
@@ -908,7 +1172,7 @@ def make_material(kind, gt_image, interpolation):
     tex.interpolation = interpolation
     tex.extension = "EXTEND"
     out = nt.nodes.new("ShaderNodeOutputMaterial")
-    aov = nt.nodes.new("ShaderNodeOutputAOV")      # the albedo each pixel sees, for the per-view ground truth
+    aov = nt.nodes.new("ShaderNodeOutputAOV")  # the albedo each pixel sees, for the per-view ground truth
     aov.aov_name = VIEW_GT_AOV
     nt.links.new(tex.outputs["Color"], aov.inputs["Color"])
     if kind == "diffuse":
@@ -920,9 +1184,15 @@ def make_material(kind, gt_image, interpolation):
         bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
         bsdf.inputs["Roughness"].default_value = 0.4
         nt.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
-        desc = dict(shader="Principled BSDF", base_color="albedo texture", roughness=0.4, metallic=0.0,
-                    ior=bsdf.inputs["IOR"].default_value, specular_ior_level=bsdf.inputs["Specular IOR Level"].default_value,
-                    note="specular at the defaults; the diffuse lobe's colour is the albedo texture")
+        desc = dict(
+            shader="Principled BSDF",
+            base_color="albedo texture",
+            roughness=0.4,
+            metallic=0.0,
+            ior=bsdf.inputs["IOR"].default_value,
+            specular_ior_level=bsdf.inputs["Specular IOR Level"].default_value,
+            note="specular at the defaults; the diffuse lobe's colour is the albedo texture",
+        )
     nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
     return mat, desc
 
@@ -938,6 +1208,7 @@ VIEW_GT_AOV = "albedo"
 def save_view_gt(scene, path):
     """Write the last render's albedo AOV as RGBA half EXR (RGB premultiplied by A = the object's coverage)."""
     import OpenEXR
+
     ims = scene.render.image_settings
     saved = (ims.media_type, ims.file_format, ims.color_mode, ims.color_depth, ims.exr_codec)
     tmp = path + ".multilayer.exr"
@@ -954,7 +1225,7 @@ def save_view_gt(scene, path):
         pre = part.name()
         rgba = np.stack([np.asarray(part.channels[f"{pre}.{c}"].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
     os.remove(tmp)
-    write_exr_rgba(path, rgba)          # (a fresh file: no metadata)
+    write_exr_rgba(path, rgba)  # (a fresh file: no metadata)
     return rgba
 
 
@@ -964,10 +1235,23 @@ def configure_render(scene, spec):
     cy = scene.cycles
     cy.device = rc["device"]
     cy.samples = spec["samples"]
-    for k in ("use_adaptive_sampling", "use_denoising", "max_bounces", "diffuse_bounces", "glossy_bounces",
-              "transmission_bounces", "transparent_max_bounces", "sample_clamp_direct", "sample_clamp_indirect",
-              "caustics_reflective", "caustics_refractive", "blur_glossy",
-              "pixel_filter_type", "filter_width", "use_light_tree"):
+    for k in (
+        "use_adaptive_sampling",
+        "use_denoising",
+        "max_bounces",
+        "diffuse_bounces",
+        "glossy_bounces",
+        "transmission_bounces",
+        "transparent_max_bounces",
+        "sample_clamp_direct",
+        "sample_clamp_indirect",
+        "caustics_reflective",
+        "caustics_refractive",
+        "blur_glossy",
+        "pixel_filter_type",
+        "filter_width",
+        "use_light_tree",
+    ):
         setattr(cy, k, rc[k])
     cy.use_animated_seed = False
     scene.render.resolution_x, scene.render.resolution_y = spec["resolution"]
@@ -992,23 +1276,35 @@ def configure_render(scene, spec):
         ims.color_mode = "RGBA" if scene.render.film_transparent else "RGB"
         ims.color_depth = "16"
         ims.exr_codec = "ZIP"
-        photo = dict(format="OpenEXR", channels=ims.color_mode, depth="half", codec="ZIP", colour="scene-linear Rec.709")
+        photo = dict(
+            format="OpenEXR", channels=ims.color_mode, depth="half", codec="ZIP", colour="scene-linear Rec.709"
+        )
         if scene.render.film_transparent:
-            photo["alpha"] = ("film transparent: the background is A = 0 (the world still lights the object); RGB is "
-                              "premultiplied by A, as usual in EXR; A is the object's pixel coverage")
+            photo["alpha"] = (
+                "film transparent: the background is A = 0 (the world still lights the object); RGB is "
+                "premultiplied by A, as usual in EXR; A is the object's pixel coverage"
+            )
     elif fmt == "PNG":
         ims.file_format = "PNG"
         ims.color_mode = "RGB"
         ims.color_depth = "8"
         ims.compression = 90
-        photo = dict(format="PNG", channels="RGB", depth=8,
-                     colour="sRGB-encoded linear radiance (view transform Standard, look None, exposure 0, no dither)")
+        photo = dict(
+            format="PNG",
+            channels="RGB",
+            depth=8,
+            colour="sRGB-encoded linear radiance (view transform Standard, look None, exposure 0, no dither)",
+        )
     elif fmt == "JPEG":
         ims.file_format = "JPEG"
         ims.color_mode = "RGB"
         ims.quality = spec.get("jpeg_quality", 95)
-        photo = dict(format="JPEG", channels="RGB", quality=ims.quality,
-                     colour="sRGB-encoded linear radiance (view transform Standard, look None, exposure 0, no dither)")
+        photo = dict(
+            format="JPEG",
+            channels="RGB",
+            quality=ims.quality,
+            colour="sRGB-encoded linear radiance (view transform Standard, look None, exposure 0, no dither)",
+        )
     else:
         raise ValueError(fmt)
     return photo
@@ -1019,23 +1315,31 @@ def develop_info(spec, photo_info):
     cap = spec["capture"]
     info = dict(photo_info)
     if spec["photo_format"] != "EXR":
-        info["colour"] = ("sRGB-encoded linear radiance x the photo's gains, clipped to [0, 1]: code = round(255 x "
-                          "srgb_oetf(clip(gain_rgb x radiance, 0, 1))), IEC 61966-2-1 piecewise curve, no dither")
+        info["colour"] = (
+            "sRGB-encoded linear radiance x the photo's gains, clipped to [0, 1]: code = round(255 x "
+            "srgb_oetf(clip(gain_rgb x radiance, 0, 1))), IEC 61966-2-1 piecewise curve, no dither"
+        )
     else:
         info["colour"] = "scene-linear Rec.709 radiance x the photo's gains (RGB; A untouched)"
     info["developed"] = (
         "Cycles renders float EXR (scene linear); make_fixtures.develop() multiplies it per photo by gain_rgb = "
         "2^exposure_ev x white_balance (cameras[i].capture) and encodes it (8 bit: Blender's image writer, from "
-        "byte pixels; EXR: half float)")
+        "byte pixels; EXR: half float)"
+    )
     info["faults"] = dict(
-        exposure_ev="uniform in [-%g, %g] per photo" % (cap.get("exposure_ev", 0), cap.get("exposure_ev", 0)),
-        white_balance="per channel, 1 + uniform in [-%g, %g] per photo" % (cap.get("white_balance", 0),
-                                                                          cap.get("white_balance", 0)),
+        exposure_ev="uniform in [-{:g}, {:g}] per photo".format(cap.get("exposure_ev", 0), cap.get("exposure_ev", 0)),
+        white_balance="per channel, 1 + uniform in [-{:g}, {:g}] per photo".format(
+            cap.get("white_balance", 0), cap.get("white_balance", 0)
+        ),
         camera_jitter_px=cap.get("jitter_px", 0),
-        camera_jitter=("the cameras in scene.blend (cameras[i].matrix_world, K/R/t) are about jitter_px pixels off the "
-                       "ones that rendered (cameras[i].render_camera); see cameras[i].jitter") if cap.get("jitter_px")
+        camera_jitter=(
+            "the cameras in scene.blend (cameras[i].matrix_world, K/R/t) are about jitter_px pixels off the "
+            "ones that rendered (cameras[i].render_camera); see cameras[i].jitter"
+        )
+        if cap.get("jitter_px")
         else None,
-        rng="numpy default_rng(seed_base + 7919), drawn per photo in order: exposure, white balance (3), jitter")
+        rng="numpy default_rng(seed_base + 7919), drawn per photo in order: exposure, white balance (3), jitter",
+    )
     return info
 
 
@@ -1044,7 +1348,7 @@ def develop(float_path, out_path, spec, capture, rng):
     lin = read_exr(float_path)
     ev = float(rng.uniform(-1.0, 1.0) * capture.get("exposure_ev", 0.0))
     wb = 1.0 + rng.uniform(-1.0, 1.0, 3) * capture.get("white_balance", 0.0)
-    gain = 2.0 ** ev * wb
+    gain = 2.0**ev * wb
     rgb = lin[..., :3] * gain
     if spec["photo_format"] == "EXR":
         write_exr_rgba(out_path, np.concatenate([rgb, lin[..., 3:]], axis=-1))
@@ -1054,7 +1358,7 @@ def develop(float_path, out_path, spec, capture, rng):
         h, w = code.shape[:2]
         img = bpy.data.images.new("_develop", w, h, alpha=False, float_buffer=False)
         px = np.ones((h, w, 4), dtype=np.float32)
-        px[..., :3] = code[::-1] / 255.0                 # Image.pixels row 0 is the bottom
+        px[..., :3] = code[::-1] / 255.0  # Image.pixels row 0 is the bottom
         img.pixels.foreach_set(px.ravel())
         img.filepath_raw = out_path
         img.file_format = spec["photo_format"]
@@ -1076,9 +1380,11 @@ def strip_metadata(path):
     """
     import struct
     import zlib
+
     ext = os.path.splitext(path)[1].lower()
     if ext == ".exr":
         import OpenEXR
+
         with OpenEXR.File(path) as f:
             ch = f.channels()
             name = "RGBA" if "RGBA" in ch else "RGB"
@@ -1092,9 +1398,9 @@ def strip_metadata(path):
         out += data[:8]
         i = 8
         while i < len(data):
-            (n,) = struct.unpack(">I", data[i:i + 4])
-            kind = data[i + 4:i + 8]
-            chunk = data[i:i + 12 + n]
+            (n,) = struct.unpack(">I", data[i : i + 4])
+            kind = data[i + 4 : i + 8]
+            chunk = data[i : i + 12 + n]
             assert struct.unpack(">I", chunk[-4:])[0] == zlib.crc32(chunk[4:-4]) & 0xFFFFFFFF
             if kind not in (b"tEXt", b"zTXt", b"iTXt", b"tIME"):
                 out += chunk
@@ -1106,12 +1412,12 @@ def strip_metadata(path):
         while True:
             assert data[i] == 0xFF
             marker = data[i + 1]
-            if marker == 0xDA:                      # start of scan: the rest is image data
+            if marker == 0xDA:  # start of scan: the rest is image data
                 out += data[i:]
                 break
-            (n,) = struct.unpack(">H", data[i + 2:i + 4])
-            if marker != 0xFE:                      # COM
-                out += data[i:i + 2 + n]
+            (n,) = struct.unpack(">H", data[i + 2 : i + 4])
+            if marker != 0xFE:  # COM
+                out += data[i : i + 2 + n]
             i += 2 + n
     else:
         raise ValueError(path)
@@ -1132,15 +1438,17 @@ def resolved_spec(name, **overrides):
     return spec
 
 
-def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, texture_size=None, view_gt=None,
-             reuse_base=True):
+def generate(
+    name, out_dir, resolution=None, n_cameras=None, samples=None, texture_size=None, view_gt=None, reuse_base=True
+):
     """Render scene ``name`` into ``out_dir/name``; return its scene.json dictionary.
 
     The keyword arguments override the scene's defaults in SCENES (None keeps them). ``view_gt`` also writes
     per-photo ground-truth albedo images in ``gt_views/``.
     """
-    spec = resolved_spec(name, resolution=resolution, n_cameras=n_cameras, samples=samples,
-                         texture_size=texture_size, view_gt=view_gt)
+    spec = resolved_spec(
+        name, resolution=resolution, n_cameras=n_cameras, samples=samples, texture_size=texture_size, view_gt=view_gt
+    )
     if "base" in spec:
         return _generate_derived(name, spec, out_dir, reuse_base)
     t_start = time.time()
@@ -1198,10 +1506,12 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
     # Lighting.
     L = spec["lighting"]
     light_info = dict(L)
-    light_info["hdri_mapping"] = ("World: Environment Texture (equirectangular, Linear) of "
-                                  "<blender>/datafiles/studiolights/world/<hdri>.exr, its vector = Mapping node (type "
-                                  "Point, rotation (0, 0, rotation_z_deg)) of the Generated texture coordinate, "
-                                  "into a Background node of the given strength")
+    light_info["hdri_mapping"] = (
+        "World: Environment Texture (equirectangular, Linear) of "
+        "<blender>/datafiles/studiolights/world/<hdri>.exr, its vector = Mapping node (type "
+        "Point, rotation (0, 0, rotation_z_deg)) of the Generated texture coordinate, "
+        "into a Background node of the given strength"
+    )
     sun = None
     if L["kind"] in ("sun", "sun_per_view"):
         ld = bpy.data.lights.new("sun", "SUN")
@@ -1214,8 +1524,10 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
             to_sun = sun_direction(L["sun_elevation_deg"], L["sun_azimuth_deg"])
             sun.matrix_world = look_at(to_sun, (0, 0, 0))
             light_info["direction_to_sun"] = list(to_sun)
-        light_info["note"] = ("sun strength in W/m^2 (irradiance), angle = angular diameter; azimuth 0 = towards -Y "
-                              "(the face), positive towards +X")
+        light_info["note"] = (
+            "sun strength in W/m^2 (irradiance), angle = angular diameter; azimuth 0 = towards -Y "
+            "(the face), positive towards +X"
+        )
     worlds = {}
 
     cam_records = []
@@ -1276,23 +1588,42 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
             if capture.get("jitter_px"):
                 # The user's camera (the one saved in scene.blend) is about a pixel off the one that rendered.
                 render_mw = cobj.matrix_world.copy()
-                cobj.matrix_world, jit = jitter_camera(render_mw, kc, w, h, capture["jitter_px"], co,
-                                                       capture_rng)
+                cobj.matrix_world, jit = jitter_camera(render_mw, kc, w, h, capture["jitter_px"], co, capture_rng)
                 r_rv, t_rv = camera_extrinsics(render_mw)
-                extra["render_camera"] = dict(matrix_world=np.array(render_mw, dtype=np.float64).tolist(),
-                                              R_core=r_rv.tolist(), t_core=t_rv.tolist())
+                extra["render_camera"] = dict(
+                    matrix_world=np.array(render_mw, dtype=np.float64).tolist(),
+                    R_core=r_rv.tolist(),
+                    t_core=t_rv.tolist(),
+                )
                 extra["jitter"] = jit
         mw = cobj.matrix_world
         cpos = np.array(mw.translation)
         r_cv, t_cv = camera_extrinsics(mw)
-        cam_records.append(dict(
-            name=cname, photo="photos/" + photo_name, lens_mm=c["lens_mm"], sensor_width_mm=SENSOR_WIDTH_MM,
-            sensor_fit="AUTO", shift=[0.0, 0.0], width=w, height=h,
-            matrix_world=np.array(mw, dtype=np.float64).tolist(), location=cpos.tolist(),
-            K_blender=kb, K_core=kc, R_core=r_cv.tolist(), t_core=t_cv.tolist(),
-            azimuth_deg=c["azimuth_deg"], elevation_deg=c["elevation_deg"], distance=c["distance"],
-            seed=seed, lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot, **view_light),
-            albedo_view=("gt_views/" + cname + ".exr") if view_gt else None, **extra))
+        cam_records.append(
+            dict(
+                name=cname,
+                photo="photos/" + photo_name,
+                lens_mm=c["lens_mm"],
+                sensor_width_mm=SENSOR_WIDTH_MM,
+                sensor_fit="AUTO",
+                shift=[0.0, 0.0],
+                width=w,
+                height=h,
+                matrix_world=np.array(mw, dtype=np.float64).tolist(),
+                location=cpos.tolist(),
+                K_blender=kb,
+                K_core=kc,
+                R_core=r_cv.tolist(),
+                t_core=t_cv.tolist(),
+                azimuth_deg=c["azimuth_deg"],
+                elevation_deg=c["elevation_deg"],
+                distance=c["distance"],
+                seed=seed,
+                lighting=dict(hdri=hname, strength=strength, rotation_z_deg=rot, **view_light),
+                albedo_view=("gt_views/" + cname + ".exr") if view_gt else None,
+                **extra,
+            )
+        )
 
     # ---- The user's file: mesh + cameras + photos; strip the ground truth and the lights. ----
     if sun is not None:
@@ -1319,33 +1650,59 @@ def generate(name, out_dir, resolution=None, n_cameras=None, samples=None, textu
         name=name,
         description=_DESCRIPTIONS[name],
         blender_version=bpy.app.version_string,
-        files=dict(blend="scene.blend", albedo_gt="albedo_gt.exr", photos="photos/",
-                   gt_views="gt_views/" if view_gt else None),
+        files=dict(
+            blend="scene.blend", albedo_gt="albedo_gt.exr", photos="photos/", gt_views="gt_views/" if view_gt else None
+        ),
         mesh=mesh_record,
-        albedo_gt=dict(file="albedo_gt.exr", size=[n, n], channels="RGBA", dtype="half",
-                       colour="linear Rec.709 (scene linear), not colour managed",
-                       rows="row 0 = top = v 1; texel (r, c) centre at u = (c+0.5)/N, v = 1-(r+0.5)/N",
-                       alpha="1 where the texel centre is inside a UV triangle, 0 in the padding",
-                       padding="texels outside every UV triangle hold the nearest inside texel's value",
-                       sampled_with=dict(interpolation=spec["interpolation"], extension="EXTEND",
-                                         alpha_mode="CHANNEL_PACKED", colorspace="Linear Rec.709"),
-                       **albedo_info),
+        albedo_gt=dict(
+            file="albedo_gt.exr",
+            size=[n, n],
+            channels="RGBA",
+            dtype="half",
+            colour="linear Rec.709 (scene linear), not colour managed",
+            rows="row 0 = top = v 1; texel (r, c) centre at u = (c+0.5)/N, v = 1-(r+0.5)/N",
+            alpha="1 where the texel centre is inside a UV triangle, 0 in the padding",
+            padding="texels outside every UV triangle hold the nearest inside texel's value",
+            sampled_with=dict(
+                interpolation=spec["interpolation"],
+                extension="EXTEND",
+                alpha_mode="CHANNEL_PACKED",
+                colorspace="Linear Rec.709",
+            ),
+            **albedo_info,
+        ),
         material=mat_info,
         lighting=light_info,
         lighting_licence=HDRI_LICENCE,
-        render=dict(RENDER_COMMON, samples=spec["samples"], film_transparent=scene.render.film_transparent, seed_base=spec["seed"],
-                    seed_rule="view i uses seed seed_base + i", resolution=list(spec["resolution"]),
-                    cycles_version=bpy.app.version_string, use_persistent_data=True),
+        render=dict(
+            RENDER_COMMON,
+            samples=spec["samples"],
+            film_transparent=scene.render.film_transparent,
+            seed_base=spec["seed"],
+            seed_rule="view i uses seed seed_base + i",
+            resolution=list(spec["resolution"]),
+            cycles_version=bpy.app.version_string,
+            use_persistent_data=True,
+        ),
         photo=photo_info,
-        gt_views=(dict(folder="gt_views/", channels="RGBA", dtype="half",
-                       meaning="per photo, the albedo texture as Cycles sampled it (an AOV of the texture colour, same "
-                               "samples and pixel filter as the photo); RGB is premultiplied by A; A = fraction of the "
-                               "pixel's samples that hit the mesh, so albedo = RGB / A where A > 0")
-                  if view_gt else None),
+        gt_views=(
+            dict(
+                folder="gt_views/",
+                channels="RGBA",
+                dtype="half",
+                meaning="per photo, the albedo texture as Cycles sampled it (an AOV of the texture colour, same "
+                "samples and pixel filter as the photo); RGB is premultiplied by A; A = fraction of the "
+                "pixel's samples that hit the mesh, so albedo = RGB / A where A > 0",
+            )
+            if view_gt
+            else None
+        ),
         cameras=cam_records,
-        camera_convention=("matrix_world: Blender camera-to-world (camera looks down -Z, +Y up). K_blender: pixel "
-                           "centres at (c+0.5, r+0.5). K_core/R_core/t_core: core.geometry.camera convention (x right, y "
-                           "down, z forward; pixel (r, c) centre at (c, r); world X -> R X + t)."),
+        camera_convention=(
+            "matrix_world: Blender camera-to-world (camera looks down -Z, +Y up). K_blender: pixel "
+            "centres at (c+0.5, r+0.5). K_core/R_core/t_core: core.geometry.camera convention (x right, y "
+            "down, z forward; pixel (r, c) centre at (c, r); world X -> R X + t)."
+        ),
         licences=dict(hdri=HDRI_LICENCE, photos=PHOTO_LICENCES),
     )
     write_json(os.path.join(scene_dir, "scene.json"), record)
@@ -1364,11 +1721,21 @@ def _generate_derived(name, spec, out_dir, reuse_base):
     if reuse_base and os.path.exists(base_json):
         with open(base_json) as f:
             b = json.load(f)
-        ok = (tuple(b["render"]["resolution"]) == tuple(want["resolution"]) and len(b["cameras"]) == want["n_cameras"]
-              and b["render"]["samples"] == want["samples"] and b["albedo_gt"]["size"][0] == want["texture_size"])
+        ok = (
+            tuple(b["render"]["resolution"]) == tuple(want["resolution"])
+            and len(b["cameras"]) == want["n_cameras"]
+            and b["render"]["samples"] == want["samples"]
+            and b["albedo_gt"]["size"][0] == want["texture_size"]
+        )
     if not ok:
-        generate(base, out_dir, resolution=want["resolution"], n_cameras=want["n_cameras"], samples=want["samples"],
-                 texture_size=want["texture_size"])
+        generate(
+            base,
+            out_dir,
+            resolution=want["resolution"],
+            n_cameras=want["n_cameras"],
+            samples=want["samples"],
+            texture_size=want["texture_size"],
+        )
     with open(base_json) as f:
         b = json.load(f)
     scene_dir = os.path.join(out_dir, name)
@@ -1407,20 +1774,39 @@ def _generate_derived(name, spec, out_dir, reuse_base):
     mesh_info["description"] += (
         "; COARSE: the user's mesh is the Smart-UV level (4x fewer faces than the render mesh) with the %s "
         "vertices smoothed (bmesh smooth_vert factor %.2f, %d times%s). Same UV islands as the render mesh, so "
-        "albedo_gt.exr applies unchanged" % ("head" if mesh_kind == "suzanne" else "mesh's", smooth["factor"],
-                                             smooth["repeat"], "; the plinth untouched" if mesh_kind == "suzanne"
-                                             else ""))
+        "albedo_gt.exr applies unchanged"
+        % (
+            "head" if mesh_kind == "suzanne" else "mesh's",
+            smooth["factor"],
+            smooth["repeat"],
+            "; the plinth untouched" if mesh_kind == "suzanne" else "",
+        )
+    )
     record = dict(b)
     record.update(
-        name=name, description=_DESCRIPTIONS[name], base_scene=base,
-        files=dict(blend="scene.blend", albedo_gt="albedo_gt.exr (a copy of the base scene's)",
-                   photos="../%s/photos/ (shared with the base scene, referenced by relative path)" % base),
-        mesh=dict(_mesh_record(coarse, mesh_info, "coarse"), coarse_smoothing=smooth,
-                  distance_to_render_mesh=dist, render_mesh=b["mesh"]),
+        name=name,
+        description=_DESCRIPTIONS[name],
+        base_scene=base,
+        files=dict(
+            blend="scene.blend",
+            albedo_gt="albedo_gt.exr (a copy of the base scene's)",
+            photos=f"../{base}/photos/ (shared with the base scene, referenced by relative path)",
+        ),
+        mesh=dict(
+            _mesh_record(coarse, mesh_info, "coarse"),
+            coarse_smoothing=smooth,
+            distance_to_render_mesh=dist,
+            render_mesh=b["mesh"],
+        ),
     )
-    record["cameras"] = [dict(c, photo="../" + base + "/" + c["photo"],
-                              albedo_view=("../" + base + "/" + c["albedo_view"]) if c.get("albedo_view") else None)
-                         for c in b["cameras"]]
+    record["cameras"] = [
+        dict(
+            c,
+            photo="../" + base + "/" + c["photo"],
+            albedo_view=("../" + base + "/" + c["albedo_view"]) if c.get("albedo_view") else None,
+        )
+        for c in b["cameras"]
+    ]
     write_json(os.path.join(scene_dir, "scene.json"), record)
     log(f"{name}: done (coarse mesh, distance to the render mesh mean {dist['mean']:.4f}, max {dist['max']:.4f})")
     return record
@@ -1428,40 +1814,48 @@ def _generate_derived(name, spec, out_dir, reuse_base):
 
 _DESCRIPTIONS = {
     "lambert_sky": "Lambertian, piecewise-constant albedo (5 regions), soft environment light (HDRI 'forest'), "
-                   "EXR photos (the paper's fig. 1 scenario)",
+    "EXR photos (the paper's fig. 1 scenario)",
     "photo_sun": "Photographic albedo, Principled BSDF roughness 0.4 (partly specular), one sun (5 deg) with cast "
-                 "shadows plus a weak world (HDRI 'studio'), 8-bit sRGB PNG photos (the paper's fig. 2 scenario)",
+    "shadows plus a weak world (HDRI 'studio'), 8-bit sRGB PNG photos (the paper's fig. 2 scenario)",
     "photo_sun_coarse": "photo_sun's photos and cameras, but the user's mesh is smoothed and coarser, with the same "
-                        "UV layout (the paper's fig. 5 scenario)",
+    "UV layout (the paper's fig. 5 scenario)",
     "varying_light": "Photographic albedo, Lambertian, lighting changes per view (HDRIs 'sunrise' and 'interior' "
-                     "alternating, rotated by the golden angle per view), JPEG q95 photos",
+    "alternating, rotated by the golden angle per view), JPEG q95 photos",
     "torus_patches": "Tilted torus (its inner ring shades itself), 14 flat Voronoi patches, Lambertian, HDRI "
-                     "'courtyard' (no sun), EXR photos with transparent film",
+    "'courtyard' (no sun), EXR photos with transparent film",
     "bowl_checker": "Open bowl (the rim shadows the inside), fine 3D checker (8 cm), Principled roughness 0.4, sun "
-                    "lamp + weak HDRI 'city', 8-bit PNG: the lit light squares clip",
+    "lamp + weak HDRI 'city', 8-bit PNG: the lit light squares clip",
     "rock_photo": "Rock (displaced icosphere with three dents), photographic albedo (coffee), Lambertian, low sun "
-                  "lamp + HDRI 'sunset', JPEG q90 with the sky as background",
+    "lamp + HDRI 'sunset', JPEG q90 with the sky as background",
     "rock_coarse": "rock_photo's photos and cameras, but the user's mesh is the smoothed coarse level (4x fewer "
-                   "faces), same UV layout",
+    "faces), same UV layout",
     "stairs_noise": "Stairs (each step shadows the next), fine procedural noise albedo, Lambertian, sun lamp + "
-                    "HDRI 'night', EXR photos with transparent film",
+    "HDRI 'night', EXR photos with transparent film",
     "suzanne_exposure": "Suzanne, photographic albedo (chelsea), Lambertian, HDRI 'studio' (no sun), 8-bit PNG with "
-                        "per-photo exposure (+-0.5 EV) and white balance (+-10 % per channel)",
+    "per-photo exposure (+-0.5 EV) and white balance (+-10 % per channel)",
     "torus_varying_sun": "Torus, photographic albedo (chelsea), Lambertian, lighting varying per photo: a sun lamp "
-                         "moving (golden-angle azimuth steps, elevation 30/60 deg) and HDRI 'sunrise' turning, EXR",
+    "moving (golden-angle azimuth steps, elevation 30/60 deg) and HDRI 'sunrise' turning, EXR",
     "bowl_jitter": "Bowl, photographic albedo (coffee), Lambertian, HDRI 'city' (a sun in the map), 8-bit PNG; "
-                   "the cameras in scene.blend are about a pixel off the ones that rendered",
+    "the cameras in scene.blend are about a pixel off the ones that rendered",
     "stairs_capture": "A real capture's faults together: stairs, flat patches, Principled roughness 0.4, sun lamp + "
-                      "HDRI 'courtyard', JPEG q85 with the background, per-photo exposure and white balance, 8-bit "
-                      "clipping, cameras about a pixel off",
+    "HDRI 'courtyard', JPEG q85 with the background, per-photo exposure and white balance, 8-bit "
+    "clipping, cameras about a pixel off",
 }
 
 
 def _mesh_record(me, info, which):
-    return dict(info, object=MESH_OBJECT, mesh=me.name, which=which, vertices=len(me.vertices),
-                faces=len(me.polygons), triangles=len(me.loop_triangles) or None, uv_map=me.uv_layers.active.name,
-                shading="smooth, sharp edges from angle 60 deg",
-                units=info.get("units", "metres, object at the origin, +Z up, Suzanne faces -Y"))
+    return dict(
+        info,
+        object=MESH_OBJECT,
+        mesh=me.name,
+        which=which,
+        vertices=len(me.vertices),
+        faces=len(me.polygons),
+        triangles=len(me.loop_triangles) or None,
+        uv_map=me.uv_layers.active.name,
+        shading="smooth, sharp edges from angle 60 deg",
+        units=info.get("units", "metres, object at the origin, +Z up, Suzanne faces -Y"),
+    )
 
 
 def _attach_photos(scene, rel_photos, scene_dir):
@@ -1500,13 +1894,25 @@ def main(argv=None):
     p.add_argument("--cameras", type=int)
     p.add_argument("--samples", type=int)
     p.add_argument("--texture-size", type=int)
-    p.add_argument("--view-gt", action="store_true", default=None,
-                   help="also write per-photo ground-truth albedo images (default: lambert_sky only)")
+    p.add_argument(
+        "--view-gt",
+        action="store_true",
+        default=None,
+        help="also write per-photo ground-truth albedo images (default: lambert_sky only)",
+    )
     a = p.parse_args(argv)
     names = a.only or list(SCENES)
     for name in names:
-        generate(name, a.out, resolution=a.resolution, n_cameras=a.cameras, samples=a.samples,
-                 texture_size=a.texture_size, view_gt=a.view_gt, reuse_base=True)
+        generate(
+            name,
+            a.out,
+            resolution=a.resolution,
+            n_cameras=a.cameras,
+            samples=a.samples,
+            texture_size=a.texture_size,
+            view_gt=a.view_gt,
+            reuse_base=True,
+        )
 
 
 if __name__ == "__main__":

@@ -21,11 +21,13 @@ bl_info = {
 
 def register():
     from . import operator, panel
+
     operator.register()
     panel.register()
 
 
 def unregister():
     from . import operator, panel
+
     panel.unregister()
     operator.unregister()

@@ -1,4 +1,5 @@
 """``python -m blender_addon SCENE.blend [options]``: see :mod:`.cli`."""
+
 import sys
 
 from .cli import main

@@ -14,14 +14,15 @@ the render settings (the camera as the user set it up), and the photo must
 have the render frame's aspect ratio: a photo of another shape would need a
 stretch or a crop, which we refuse to guess.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from .core.geometry.camera import Camera
 from .core.errors import DelightError
+from .core.geometry.camera import Camera
 
 __all__ = ["ASPECT_TOLERANCE", "check_aspect", "intrinsics", "to_core_camera"]
 
@@ -50,7 +51,8 @@ def check_aspect(name, render, width, height):
     raise DelightError(
         f"camera {name!r}: its photo is {width}x{height} (aspect {photo:.4f}) but the render frame is "
         f"{rw}x{rh} (aspect {frame:.4f}); set the render resolution to the photo's aspect ratio "
-        "(the photo would otherwise be stretched)")
+        "(the photo would otherwise be stretched)"
+    )
 
 
 def intrinsics(cam_data, render, width, height):
@@ -102,8 +104,7 @@ def to_core_camera(cam_obj, scene, width, height, matrix_world=None, scale=(1.0,
     if cam_obj.type != "CAMERA":
         raise DelightError(f"object {cam_obj.name!r} is not a camera")
     if data.type != "PERSP":
-        raise DelightError(f"camera {cam_obj.name!r} is {data.type.lower()}; only perspective cameras "
-                           "are supported")
+        raise DelightError(f"camera {cam_obj.name!r} is {data.type.lower()}; only perspective cameras are supported")
     check_aspect(cam_obj.name, scene.render, width, height)
     fx, fy, cx, cy = intrinsics(data, scene.render, width, height)
     sx, sy = scale

@@ -16,13 +16,16 @@ any other failure (a full disk, out of memory, a bug), with one ``error:`` line
 too (``--debug`` prints the traceback before it); 2 on a usage error (an
 unknown option, a word where a number belongs); 130 when interrupted.
 """
+
 if __name__ == "__main__" and not __package__:
     # Run as a script by `blender -P`: import the package by name from beside
     # this file (the package itself only uses relative imports).
     import os
     import sys
+
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from blender_addon.cli import main, script_argv
+
     sys.exit(main(script_argv(sys.argv), blend_loaded=True))
 
 import argparse
@@ -35,22 +38,39 @@ __all__ = ["build_parser", "main", "script_argv", "options_from_args", "CLI_FIEL
 def script_argv(argv) -> list:
     """The arguments after ``--`` (Blender's own come before)."""
     argv = list(argv)
-    return argv[argv.index("--") + 1:] if "--" in argv else []
+    return argv[argv.index("--") + 1 :] if "--" in argv else []
 
 
 #: The settings the command line takes, in the order of ``--help``.
-CLI_FIELDS = ("object_name", "camera_names", "images_dir", "lam", "albedo_lam", "lighting", "occlusion",
-              "mask_clipped", "mu", "max_iter", "working_res_mp", "texture_size", "method", "out_dir", "save_blend",
-              "overwrite")
+CLI_FIELDS = (
+    "object_name",
+    "camera_names",
+    "images_dir",
+    "lam",
+    "albedo_lam",
+    "lighting",
+    "occlusion",
+    "mask_clipped",
+    "mu",
+    "max_iter",
+    "working_res_mp",
+    "texture_size",
+    "method",
+    "out_dir",
+    "save_blend",
+    "overwrite",
+)
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     from .core.errors import DEBUG_HELP
     from .core.options import add_arguments
+
     p = argparse.ArgumentParser(
         prog="python -m blender_addon" if with_blend else "blender -b SCENE.blend -P blender_addon/cli.py --",
         description="Estimate the albedo of a mesh from its photos and cameras (Melou et al. 2018) "
-                    "and write it as a linear EXR texture.")
+        "and write it as a linear EXR texture.",
+    )
     if with_blend:
         p.add_argument("blend", metavar="SCENE.blend", help="the scene to read")
     add_arguments(p, CLI_FIELDS)
@@ -61,6 +81,7 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
 def options_from_args(args):
     """The :class:`core.options.Options` of parsed arguments."""
     from .core.options import Options
+
     return Options(**{name: getattr(args, name) for name in CLI_FIELDS})
 
 
@@ -101,13 +122,15 @@ def main(argv=None, blend_loaded: bool = False) -> int:
             raise DelightError("no .blend was loaded (run: blender -b SCENE.blend -P cli.py -- ...)")
         print(f"delight: {bpy.data.filepath}: method {options.method}", flush=True)
         report = run(bpy.context.scene, options, progress=ProgressPrinter(sys.stdout))
-    except (Exception, KeyboardInterrupt) as exc:   # one line for any failure; the traceback with --debug
+    except (Exception, KeyboardInterrupt) as exc:  # one line for any failure; the traceback with --debug
         return report_failure(exc, sys.stderr, debug=args.debug)
     for w in report.warnings:
         print(f"warning: {w}", flush=True)
     times = ", ".join(f"{k} {v:.2f} s" for k, v in report.times.items())
-    print(f"delight: wrote {report.albedo_path} ({report.iterations} iterations, {report.lambda_text}; {times})",
-          flush=True)
+    print(
+        f"delight: wrote {report.albedo_path} ({report.iterations} iterations, {report.lambda_text}; {times})",
+        flush=True,
+    )
     if report.saved_blend:
         print(f"delight: saved {report.saved_blend}", flush=True)
     return 0

@@ -9,6 +9,7 @@ nodes are stored in the material's ``"delight"`` custom property and the
 nodes carry a ``"delight"`` tag: a re-run finds and reuses them instead of
 stacking new ones, and does not frame our own node.
 """
+
 from __future__ import annotations
 
 import bpy
@@ -39,8 +40,7 @@ def check_editable(obj, mats=None):
         raise DelightError(f"object {obj.name!r} is linked from a library and cannot get a material")
     for m in mats:
         if m.library is not None:
-            raise DelightError(f"material {m.name!r} of {obj.name!r} is linked from a library; "
-                               "make it local first")
+            raise DelightError(f"material {m.name!r} of {obj.name!r} is linked from a library; make it local first")
 
 
 def _tagged(nt, role, name_hint):

@@ -9,6 +9,7 @@ the report (an unexpected one's traceback goes to the system console only). In
 background mode, and on redo (Adjust Last Operation), it runs in-line and
 prints its progress.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,8 +26,19 @@ from .core.errors import Cancelled, DelightError, failure_message, is_expected
 from .core.options import OPTIONS
 from .core.progress import ProgressPrinter, ProgressState
 
-__all__ = ["DELIGHT_OT_run", "Job", "spec_property", "spec_labels", "set_status", "get_status", "progress_bar",
-           "draw_progress", "draw_status_bar", "begin_progress", "end_progress"]
+__all__ = [
+    "DELIGHT_OT_run",
+    "Job",
+    "spec_property",
+    "spec_labels",
+    "set_status",
+    "get_status",
+    "progress_bar",
+    "draw_progress",
+    "draw_status_bar",
+    "begin_progress",
+    "end_progress",
+]
 
 
 def spec_labels(name: str) -> dict:
@@ -86,7 +98,7 @@ def get_status() -> str:
 
 
 # -- the progress bar (GUI) ------------------------------------------------------------------------
-_RUN = None   # the ProgressState of the run going on in the GUI, or None
+_RUN = None  # the ProgressState of the run going on in the GUI, or None
 _ESC = "Delight: Esc cancels"
 
 
@@ -111,7 +123,7 @@ def draw_progress(layout) -> bool:
 def draw_status_bar(self, context):
     """The bar at the end of the status bar (appended to ``STATUSBAR_HT_header`` while a run goes)."""
     row = self.layout.row()
-    row.ui_units_x = 18   # a header row is only as wide as its items ask
+    row.ui_units_x = 18  # a header row is only as wide as its items ask
     draw_progress(row)
 
 
@@ -160,8 +172,9 @@ class Job:
 
     def _work(self):
         try:
-            self.computed = pipeline.compute(self.prepared, progress=lambda f, m="": self.messages.put((f, m)),
-                                             cancel=self.cancel_event.is_set)
+            self.computed = pipeline.compute(
+                self.prepared, progress=lambda f, m="": self.messages.put((f, m)), cancel=self.cancel_event.is_set
+            )
         except BaseException as exc:  # reported on the main thread
             self.error = exc
 
@@ -218,7 +231,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     _job = None
     _timer = None
     _prepared = None
-    _drawn = None   # the bar as last drawn
+    _drawn = None  # the bar as last drawn
 
     # -- options ---------------------------------------------------------------------------------
     def pipeline_options(self) -> pipeline.Options:
@@ -232,21 +245,34 @@ class DELIGHT_OT_run(bpy.types.Operator):
                 raise DelightError(f"the collection {coll.name!r} has no cameras")
         out = self.out_dir.strip()
         if out.startswith("//") and not bpy.data.filepath:
-            raise DelightError("the .blend file is not saved, so '//' means nothing: "
-                               "save it or choose an absolute output folder")
+            raise DelightError(
+                "the .blend file is not saved, so '//' means nothing: save it or choose an absolute output folder"
+            )
         return pipeline.Options(
-            object_name=self.object_name or None, camera_names=names,
+            object_name=self.object_name or None,
+            camera_names=names,
             images_dir=bpy.path.abspath(self.images_dir) if self.images_dir else None,
-            selected_only=self.cameras == "SELECTED", lam=None if self.auto_lambda else self.lam,
-            albedo_lam=self.albedo_lam, lighting=self.lighting, occlusion=self.occlusion,
-            mask_clipped=self.mask_clipped, mu=self.mu, max_iter=self.max_iter,
-            working_res_mp=self.working_res, texture_size=self.texture_size, method=self.method,
-            out_dir=bpy.path.abspath(out) if out else None, overwrite=self.overwrite)
+            selected_only=self.cameras == "SELECTED",
+            lam=None if self.auto_lambda else self.lam,
+            albedo_lam=self.albedo_lam,
+            lighting=self.lighting,
+            occlusion=self.occlusion,
+            mask_clipped=self.mask_clipped,
+            mu=self.mu,
+            max_iter=self.max_iter,
+            working_res_mp=self.working_res,
+            texture_size=self.texture_size,
+            method=self.method,
+            out_dir=bpy.path.abspath(out) if out else None,
+            overwrite=self.overwrite,
+        )
 
     def _done(self, report):
-        msg = (f"Delight: {report.object_name} -> {report.image_name} "
-               f"({report.iterations} iterations, {report.lambda_text}, {sum(report.times.values()):.1f} s), "
-               f"files in {report.out_dir}")
+        msg = (
+            f"Delight: {report.object_name} -> {report.image_name} "
+            f"({report.iterations} iterations, {report.lambda_text}, {sum(report.times.values()):.1f} s), "
+            f"files in {report.out_dir}"
+        )
         for w in report.warnings:
             self.report({"WARNING"}, w)
         self.report({"INFO"}, msg)
@@ -271,7 +297,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
         progress = ProgressPrinter(sys.stdout) if bpy.app.background else None
         try:
             report = pipeline.run(context.scene, self.pipeline_options(), progress=progress)
-        except Exception as exc:   # any failure is one line in the report, never a traceback
+        except Exception as exc:  # any failure is one line in the report, never a traceback
             return self._fail(exc)
         return self._done(report)
 
@@ -287,9 +313,11 @@ class DELIGHT_OT_run(bpy.types.Operator):
         # The scene is read on the main thread, so nothing redraws meanwhile: the cursor shows the progress.
         wm.progress_begin(0, 100)
         try:
+
             def progress(f, m=""):
                 state(f, m)
                 wm.progress_update(int(100 * f))
+
             self._prepared = pipeline.prepare(context.scene, self.pipeline_options(), progress=progress)
         except Exception as exc:
             self._cleanup(context)
@@ -314,7 +342,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             for fraction, message in self._job.poll():
                 _RUN(fraction, message)
             bar = _RUN.bar()
-            if bar != self._drawn:   # redraw only when the bar changed
+            if bar != self._drawn:  # redraw only when the bar changed
                 self._drawn = bar
                 _redraw_progress(context, "Delight: cancelling" if self._job.cancel_event.is_set() else _ESC)
         if not self._job.done:
@@ -346,7 +374,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             self._timer = None
         self._job = None
         end_progress()
-        _redraw_progress(context, None)   # the panel shows its button again, the status bar its own text
+        _redraw_progress(context, None)  # the panel shows its button again, the status bar its own text
 
 
 classes = (DELIGHT_OT_run,)

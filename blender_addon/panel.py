@@ -1,4 +1,5 @@
 """The "Delight" tab in the 3D Viewport sidebar, and its settings on the scene."""
+
 from __future__ import annotations
 
 import bpy
@@ -41,15 +42,32 @@ class DelightSettings(bpy.types.PropertyGroup):
 
 
 #: The settings the panel hands to the operator as they are (same property name on both).
-_SAME = ("cameras", "images_dir", "method", "auto_lambda", "lam", "albedo_lam", "lighting", "occlusion",
-         "mask_clipped", "mu", "max_iter", "working_res", "texture_size", "out_dir", "overwrite")
+_SAME = (
+    "cameras",
+    "images_dir",
+    "method",
+    "auto_lambda",
+    "lam",
+    "albedo_lam",
+    "lighting",
+    "occlusion",
+    "mask_clipped",
+    "mu",
+    "max_iter",
+    "working_res",
+    "texture_size",
+    "out_dir",
+    "overwrite",
+)
 
 
 def operator_settings(settings) -> dict:
     """The operator's properties for the panel's settings."""
-    return dict(object_name=settings.target.name if settings.target else "",
-                camera_collection=settings.camera_collection.name if settings.camera_collection else "",
-                **{name: getattr(settings, name) for name in _SAME})
+    return dict(
+        object_name=settings.target.name if settings.target else "",
+        camera_collection=settings.camera_collection.name if settings.camera_collection else "",
+        **{name: getattr(settings, name) for name in _SAME},
+    )
 
 
 class VIEW3D_PT_delight(bpy.types.Panel):
@@ -97,7 +115,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         col.prop(s, "overwrite")
 
         col = layout.column()
-        if draw_progress(col):   # a run goes: its bar instead of the button
+        if draw_progress(col):  # a run goes: its bar instead of the button
             col.label(text="Esc cancels", icon="CANCEL")
         else:
             op = col.operator(DELIGHT_OT_run.bl_idname, icon="SHADING_TEXTURE")
@@ -115,7 +133,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         if images:
             box = layout.box()
             box.label(text="Last run", icon="IMAGE_DATA")
-            for img in images:   # compare (photo | reflectance), then the lighting spheres
+            for img in images:  # compare (photo | reflectance), then the lighting spheres
                 box.template_icon(icon_value=layout.icon(img), scale=8.0)
 
 

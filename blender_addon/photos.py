@@ -18,6 +18,7 @@ float EXR into a temporary folder (:func:`_byte_image_linear`).
 Nothing is left changed: an image loaded from the folder is removed after
 reading, and pixel buffers we caused to load are freed again.
 """
+
 from __future__ import annotations
 
 import os
@@ -94,8 +95,7 @@ def image_pixels(img, camera_name, label=None, info=None):
     try:
         w, h = img.size  # touching size/pixels loads the buffer
         if w == 0 or h == 0 or not img.has_data:
-            raise DelightError(f"camera {camera_name!r}: cannot read its photo {label} (missing or unreadable "
-                               "file)")
+            raise DelightError(f"camera {camera_name!r}: cannot read its photo {label} (missing or unreadable file)")
         ch = img.channels
         is_float = img.is_float
         rgb = None
@@ -106,8 +106,8 @@ def image_pixels(img, camera_name, label=None, info=None):
             img.pixels.foreach_get(flat)
         if not is_float:
             rgb = _byte_image_linear(img)
-            if info is not None:   # clipping is judged on the codes, whatever the colour space
-                codes = flat.reshape(h, w, ch)[::-1, :, :min(ch, 3)]
+            if info is not None:  # clipping is judged on the codes, whatever the colour space
+                codes = flat.reshape(h, w, ch)[::-1, :, : min(ch, 3)]
                 info["clipped"] = clipped_pixels(codes)
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
@@ -122,8 +122,7 @@ def image_pixels(img, camera_name, label=None, info=None):
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     bad = ~np.isfinite(rgb).all(axis=2)
     if bad.any():
-        raise DelightError(f"camera {camera_name!r}: its photo {label} has "
-                           f"{int(bad.sum())} NaN or infinite pixels")
+        raise DelightError(f"camera {camera_name!r}: its photo {label} has {int(bad.sum())} NaN or infinite pixels")
     return rgb
 
 
@@ -154,16 +153,20 @@ def _from_background(scene, cam_obj):
     if bg.source == "MOVIE_CLIP":
         if bg.clip is None:
             return None
-        raise DelightError(f"camera {cam_obj.name!r}: its background is the movie clip {bg.clip.name!r}, one "
-                           "camera for many photos (Photogrammetry Importer's 'animated camera'); Delight needs "
-                           "one camera per photo: re-import without the animated camera option")
+        raise DelightError(
+            f"camera {cam_obj.name!r}: its background is the movie clip {bg.clip.name!r}, one "
+            "camera for many photos (Photogrammetry Importer's 'animated camera'); Delight needs "
+            "one camera per photo: re-import without the animated camera option"
+        )
     img = bg.image
     if img is None:
         return None
     if img.source == "MOVIE":
-        raise DelightError(f"camera {cam_obj.name!r}: its background {img.name!r} is a movie, which Delight "
-                           "cannot read frame by frame: export the frames as images (an image sequence or a "
-                           "folder of photos named like the cameras)")
+        raise DelightError(
+            f"camera {cam_obj.name!r}: its background {img.name!r} is a movie, which Delight "
+            "cannot read frame by frame: export the frames as images (an image sequence or a "
+            "folder of photos named like the cameras)"
+        )
     if img.source == "SEQUENCE":
         return _sequence_frame_path(scene, bg)
     return img
@@ -254,14 +257,17 @@ def find_photo(scene, cam_obj, images_dir=None, info=None):
     """
     img = _from_background(scene, cam_obj)
     if isinstance(img, str):
-        return (_load_file(img, cam_obj.name, check_existing=False, info=info),
-                f"background image sequence frame {img}")
+        return (
+            _load_file(img, cam_obj.name, check_existing=False, info=info),
+            f"background image sequence frame {img}",
+        )
     if img is not None:
         return image_pixels(img, cam_obj.name, info=info), f"background image {img.name!r}"
     img = _from_image_plane(scene, cam_obj)
     if img is not None:
-        return image_pixels(img, cam_obj.name, info=info), f"image plane {_plane_names(cam_obj.name)[0]!r} " \
-                                                 f"(image {img.name!r})"
+        return image_pixels(
+            img, cam_obj.name, info=info
+        ), f"image plane {_plane_names(cam_obj.name)[0]!r} (image {img.name!r})"
     looked = ["its background images", f"an image plane object {' or '.join(map(repr, _plane_names(cam_obj.name)))}"]
     if images_dir:
         import bpy

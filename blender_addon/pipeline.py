@@ -16,11 +16,12 @@ worker thread:
 :class:`core.errors.Cancelled`; until the files are in place that leaves the
 scene and the output folder as they were.
 """
+
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,16 +29,17 @@ from .core.checks import check_photos, check_uv_layout
 from .core.errors import Cancelled, DelightError
 from .core.io import outputs as _outputs
 from .core.io.names import safe_name
-from .core.pipeline import DEFAULTS, METHODS, Computed, Options, check_cancel, stage_progress
+from .core.pipeline import Computed, Options, check_cancel, stage_progress
 from .core.pipeline import compute as _compute
+
 
 @dataclass
 class Prepared:
     """The scene read into arrays (output of :func:`prepare`)."""
 
     options: Options
-    inputs: object                  # scene.SceneInputs
-    bakes: list                     # list of bake.ViewBake, one per kept view
+    inputs: object  # scene.SceneInputs
+    bakes: list  # list of bake.ViewBake, one per kept view
     out_dir: str
     times: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
@@ -59,8 +61,8 @@ class RunReport:
     cameras: list
     warnings: list = field(default_factory=list)
     saved_blend: str | None = None
-    lam: float | None = None                  # the TV weight used (None for "project")
-    lighting_variation: float | None = None   # what auto lambda measured
+    lam: float | None = None  # the TV weight used (None for "project")
+    lighting_variation: float | None = None  # what auto lambda measured
     lambda_auto: bool = False
 
     @property
@@ -73,13 +75,15 @@ class RunReport:
         if self.lam is None:
             return "no solve"
         from .core.solve.lambda_choice import describe_lambda
+
         return describe_lambda(self.lam, self.lighting_variation, self.lambda_auto)
 
 
 def _blend_folder(blend_path: str) -> str:
     if not blend_path:
-        raise DelightError("the .blend file is not saved, so there is no default output folder: "
-                           "choose an output folder")
+        raise DelightError(
+            "the .blend file is not saved, so there is no default output folder: choose an output folder"
+        )
     return os.path.dirname(os.path.abspath(blend_path))
 
 
@@ -102,8 +106,8 @@ def _input_files(inputs) -> list:
 
     files = [bpy.data.filepath]
     files += [bpy.path.abspath(lib.filepath) for lib in bpy.data.libraries]
-    files += [v.source for v in inputs.views if os.path.isabs(v.source)]   # photos from the images folder
-    for img in bpy.data.images:   # background images, image planes, textures
+    files += [v.source for v in inputs.views if os.path.isabs(v.source)]  # photos from the images folder
+    for img in bpy.data.images:  # background images, image planes, textures
         if img.source in ("FILE", "SEQUENCE", "MOVIE", "TILED") and img.filepath:
             files.append(os.path.abspath(bpy.path.abspath(img.filepath, library=img.library)))
     return files
@@ -123,28 +127,38 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     """
     import bpy
 
-    from .core.geometry import bake as _bake
     from . import material as _material
     from . import scene as _scene
+    from .core.geometry import bake as _bake
 
     options.validate()
     times = {}
     if not options.out_dir:
-        _blend_folder(bpy.data.filepath)   # no default folder: say so before reading the scene
+        _blend_folder(bpy.data.filepath)  # no default folder: say so before reading the scene
     if options.save_blend and not bpy.data.filepath:
         raise DelightError("cannot save: the .blend file has never been saved")
 
     t = time.perf_counter()
     stage_progress(progress, "gather")(0.0, "reading the scene")
-    inputs = _scene.gather(scene, object_name=options.object_name, camera_names=options.camera_names,
-                           images_dir=options.images_dir, working_res_mp=options.working_res_mp,
-                           selected_only=options.selected_only)
+    inputs = _scene.gather(
+        scene,
+        object_name=options.object_name,
+        camera_names=options.camera_names,
+        images_dir=options.images_dir,
+        working_res_mp=options.working_res_mp,
+        selected_only=options.selected_only,
+    )
     # Fail before the long part if the outputs or the material are in the way.
     _material.check_editable(bpy.data.objects[inputs.object_name])
-    out_dir = os.path.abspath(bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath,
-                                                                                  inputs.object_name)))
-    _outputs.prepare_outputs(out_dir, _output_names(inputs.object_name, [v.name for v in inputs.views]),
-                             options.overwrite, _input_files(inputs))
+    out_dir = os.path.abspath(
+        bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath, inputs.object_name))
+    )
+    _outputs.prepare_outputs(
+        out_dir,
+        _output_names(inputs.object_name, [v.name for v in inputs.views]),
+        options.overwrite,
+        _input_files(inputs),
+    )
     times["gather"] = time.perf_counter() - t
     check_cancel(cancel)
 
@@ -166,10 +180,8 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         inputs.views = [inputs.views[i] for i in keep]
         bakes = [bakes[i] for i in keep]
     warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
-    warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views],
-                             [b.mask for b in bakes])
-    return Prepared(options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times,
-                    warnings=warnings)
+    warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views], [b.mask for b in bakes])
+    return Prepared(options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times, warnings=warnings)
 
 
 def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
@@ -184,22 +196,36 @@ def _lighting_json(prepared, computed, files):
 
 def _report_json(prepared, computed, files, times):
     import bpy
+
     opt = prepared.options
     return {
         "object": prepared.inputs.object_name,
         "uv_map": prepared.inputs.mesh.uv_map,
         "method": opt.method,
-        "parameters": {"lambda": computed.info.get("lam", opt.lam), "lambda_auto": opt.lam is None,
-                       "lighting_variation": computed.info.get("lighting_variation"),
-                       "albedo_lambda": opt.albedo_lam, "lighting": computed.info.get("lighting_mode", opt.lighting),
-                       "occlusion": opt.occlusion, "mask_clipped": opt.mask_clipped,
-                       "mu": opt.mu, "max_iter": opt.max_iter,
-                       "working_res_mp": opt.working_res_mp, "texture_size": opt.texture_size,
-                       "images_dir": opt.images_dir},
-        "cameras": [{"name": v.name, "file": f,
-                     "photo": v.source, "size": [int(v.photo.shape[1]), int(v.photo.shape[0])],
-                     "pixels_on_mesh": int(np.count_nonzero(b.mask))}
-                    for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)],
+        "parameters": {
+            "lambda": computed.info.get("lam", opt.lam),
+            "lambda_auto": opt.lam is None,
+            "lighting_variation": computed.info.get("lighting_variation"),
+            "albedo_lambda": opt.albedo_lam,
+            "lighting": computed.info.get("lighting_mode", opt.lighting),
+            "occlusion": opt.occlusion,
+            "mask_clipped": opt.mask_clipped,
+            "mu": opt.mu,
+            "max_iter": opt.max_iter,
+            "working_res_mp": opt.working_res_mp,
+            "texture_size": opt.texture_size,
+            "images_dir": opt.images_dir,
+        },
+        "cameras": [
+            {
+                "name": v.name,
+                "file": f,
+                "photo": v.source,
+                "size": [int(v.photo.shape[1]), int(v.photo.shape[0])],
+                "pixels_on_mesh": int(np.count_nonzero(b.mask)),
+            }
+            for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)
+        ],
         "times_s": times,
         "iterations": computed.iterations,
         "energy": computed.energy,
@@ -243,12 +269,12 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:
         raise DelightError(f"the object {inputs.object_name!r} is gone from the scene")
-    _material.check_editable(obj)   # before any file is written
+    _material.check_editable(obj)  # before any file is written
     names = [v.name for v in inputs.views]
     albedo_file, *view_files, lighting_file = _output_names(inputs.object_name, names)
     stage(0.0, f"files in {prepared.out_dir}")
     contents = {albedo_file: _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)}
-    for v, b, f, values in zip(inputs.views, prepared.bakes, view_files, computed.views):
+    for b, f, values in zip(prepared.bakes, view_files, computed.views):
         contents[f] = _outputs.rgba(values, b.mask)
     contents[lighting_file] = _lighting_json(prepared, computed, view_files)
 
@@ -257,15 +283,16 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
         times["write"] = time.perf_counter() - t
         return _report_json(prepared, computed, view_files, times)
 
-    files = _outputs.write_outputs(prepared.out_dir, contents, report, overwrite=opt.overwrite,
-                                   inputs=_input_files(inputs), cancel=cancel)
+    files = _outputs.write_outputs(
+        prepared.out_dir, contents, report, overwrite=opt.overwrite, inputs=_input_files(inputs), cancel=cancel
+    )
     # The files are in place: from here on a failure says so. The .blend is saved last.
     saved = None
     try:
         stage(0.6, "material")
         image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
         mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
-        _previews.update(inputs.object_name, prepared, computed)   # pictures for the panel
+        _previews.update(inputs.object_name, prepared, computed)  # pictures for the panel
         if opt.save_blend:
             stage(0.9, "saving the .blend")
             path = bpy.data.filepath
@@ -276,21 +303,34 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
                     raise RuntimeError(f"{path} is not a file after saving")
             except RuntimeError as exc:
                 why = str(exc).strip().removeprefix("Error:").strip()
-                raise DelightError(f"the new outputs are in {prepared.out_dir}, but the .blend could not be "
-                                   f"saved: {why}") from None
+                raise DelightError(
+                    f"the new outputs are in {prepared.out_dir}, but the .blend could not be saved: {why}"
+                ) from None
             saved = bpy.data.filepath
     except KeyboardInterrupt:
         blend = "" if not opt.save_blend else "; the .blend was saved" if saved else "; the .blend was not saved"
-        raise Cancelled(f"interrupted after the new outputs were written to {prepared.out_dir}{blend}",
-                        written=prepared.out_dir) from None
+        raise Cancelled(
+            f"interrupted after the new outputs were written to {prepared.out_dir}{blend}", written=prepared.out_dir
+        ) from None
     times["write"] = time.perf_counter() - t
     stage(1.0, "done")
-    return RunReport(object_name=inputs.object_name, method=opt.method, out_dir=prepared.out_dir, files=files,
-                     image_name=image.name, materials=[m.name for m in mats], times=times,
-                     iterations=computed.iterations, energy=computed.energy, cameras=names,
-                     warnings=list(prepared.warnings), saved_blend=saved,
-                     lam=computed.info.get("lam"), lighting_variation=computed.info.get("lighting_variation"),
-                     lambda_auto=opt.lam is None)
+    return RunReport(
+        object_name=inputs.object_name,
+        method=opt.method,
+        out_dir=prepared.out_dir,
+        files=files,
+        image_name=image.name,
+        materials=[m.name for m in mats],
+        times=times,
+        iterations=computed.iterations,
+        energy=computed.energy,
+        cameras=names,
+        warnings=list(prepared.warnings),
+        saved_blend=saved,
+        lam=computed.info.get("lam"),
+        lighting_variation=computed.info.get("lighting_variation"),
+        lambda_auto=opt.lam is None,
+    )
 
 
 def run(scene, options: Options, progress=None, cancel=None) -> RunReport:

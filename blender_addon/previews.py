@@ -14,6 +14,7 @@ pixels hold no text: each image keeps a caption (:func:`caption`) that the
 panel shows beside it. The pixel arrays come from :mod:`core.evaluate.pictures`;
 only the copy into Blender's images is here (Blender packs them).
 """
+
 from __future__ import annotations
 
 import bpy
@@ -49,7 +50,7 @@ def _put(name: str, rgb8: np.ndarray, text: str):
     h, w = rgb8.shape[:2]
     img = bpy.data.images.get(name)
     if img is not None and img.library is not None:
-        return None                      # linked from a library: not ours to change
+        return None  # linked from a library: not ours to change
     if img is None:
         img = bpy.data.images.new(name, w, h, alpha=False)
     elif tuple(img.size) != (w, h):

@@ -3,14 +3,15 @@
 :func:`gather` only reads the scene. Everything it returns is plain NumPy, so
 the rest of the run can happen off the main thread.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from . import photos as _photos
-from .core.io.photos import downscale
 from .camera import to_core_camera
 from .core.errors import DelightError
+from .core.io.photos import downscale
 from .core.scene import MeshArrays, SceneInputs, ViewInput
 
 __all__ = ["gather", "mesh_arrays"]
@@ -65,8 +66,7 @@ def _cameras_seeing(scene, obj, cameras):
 def _seen_mesh(scene, view_layer):
     """The one mesh that the scene's cameras look at, when there is exactly one best candidate."""
     cameras = [o for o in scene.objects if o.type == "CAMERA"]
-    meshes = [o for o in scene.objects if o.type == "MESH" and not _is_image_plane(o, cameras)
-              and len(o.data.polygons)]
+    meshes = [o for o in scene.objects if o.type == "MESH" and not _is_image_plane(o, cameras) and len(o.data.polygons)]
     if not meshes:
         raise DelightError(f"scene {scene.name!r} has no mesh to delight")
     if len(meshes) == 1:
@@ -75,8 +75,10 @@ def _seen_mesh(scene, view_layer):
     if counts[0][0] > 0 and counts[0][0] > counts[1][0]:
         return scene.objects[counts[0][1]]
     names = ", ".join(repr(n) for _, n in counts[:8]) + (" ..." if len(counts) > 8 else "")
-    raise DelightError(f"several meshes could be the target ({names}): name one (--object NAME on the command "
-                       "line, the Object field in the panel) or make it the active object")
+    raise DelightError(
+        f"several meshes could be the target ({names}): name one (--object NAME on the command "
+        "line, the Object field in the panel) or make it the active object"
+    )
 
 
 def _target(scene, view_layer, object_name):
@@ -180,9 +182,13 @@ def mesh_arrays(obj, depsgraph) -> MeshArrays:
     nmat = np.linalg.inv(mw[:3, :3]).T
     nrm = cn.reshape(-1, 3).astype(np.float64) @ nmat.T
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-    return MeshArrays(tri_pos=pos[tri_vert], tri_uv=uv.reshape(-1, 2)[tri_loop],
-                      tri_vert=tri_vert, uv_map=uv_map,
-                      tri_normal=nrm.reshape(nt, 3, 3).astype(np.float32))
+    return MeshArrays(
+        tri_pos=pos[tri_vert],
+        tri_uv=uv.reshape(-1, 2)[tri_loop],
+        tri_vert=tri_vert,
+        uv_map=uv_map,
+        tri_normal=nrm.reshape(nt, 3, 3).astype(np.float32),
+    )
 
 
 def _cameras(scene, view_layer, camera_names, selected_only):
@@ -207,8 +213,9 @@ def _cameras(scene, view_layer, camera_names, selected_only):
     return sorted(cams, key=lambda o: o.name)
 
 
-def gather(context_or_scene, object_name=None, camera_names=None, images_dir=None, working_res_mp=1.0,
-           selected_only=False) -> SceneInputs:
+def gather(
+    context_or_scene, object_name=None, camera_names=None, images_dir=None, working_res_mp=1.0, selected_only=False
+) -> SceneInputs:
     """Read the mesh, the cameras and their photos from the scene.
 
     Parameters
@@ -278,6 +285,5 @@ def _view(scene, depsgraph, cam, images_dir, working_res_mp):
     clipped = info.get("clipped")
     if clipped is not None and scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
         clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
-    camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world,
-                            scale=scale)
+    camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world, scale=scale)
     return ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped)

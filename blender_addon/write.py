@@ -1,4 +1,5 @@
 """The packed albedo image in the .blend (the files are written by :mod:`core.io.outputs`)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,15 +25,14 @@ def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
     old = bpy.data.images.get(name)
     if old is not None and (not old.get("delight") or old.library is not None):
         old = None
-    img = bpy.data.images.new(name + ".delight-new" if old else name, n_cols, n_rows,
-                              alpha=True, float_buffer=True)
+    img = bpy.data.images.new(name + ".delight-new" if old else name, n_cols, n_rows, alpha=True, float_buffer=True)
     img["delight"] = True
     # The values are in the working space, as the photos were read. The alpha
     # is a "seen" mask, not coverage, so it must not premultiply the colour.
     img.colorspace_settings.name = working_space()
     img.alpha_mode = "CHANNEL_PACKED"
     img.pixels.foreach_set(np.ascontiguousarray(pixels[::-1]).ravel())  # Blender's row 0 is the bottom
-    img.file_format = "OPEN_EXR"   # float32 EXR in the .blend; PNG would quantise
+    img.file_format = "OPEN_EXR"  # float32 EXR in the .blend; PNG would quantise
     img.update()
     img.pack()
     if old is not None:

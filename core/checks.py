@@ -1,4 +1,5 @@
 """Checks of the inputs before the solve, by stated rules: photos that cannot be images of light on the mesh."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,12 +45,16 @@ def check_photos(names, photos, masks) -> list:
         negative = (px < 0).any(axis=1)
         share = float(negative.mean())
         if share > NEGATIVE_MAX_SHARE:
-            raise DelightError(f"camera {name!r}: {100 * share:.0f} % of its photo's pixels on the mesh are "
-                               "negative, so it is not a linear image of light: check how the photo was exported "
-                               "and its colour space")
+            raise DelightError(
+                f"camera {name!r}: {100 * share:.0f} % of its photo's pixels on the mesh are "
+                "negative, so it is not a linear image of light: check how the photo was exported "
+                "and its colour space"
+            )
         if not (px > 0).any():
-            raise DelightError(f"camera {name!r}: its photo is black wherever it sees the mesh: check that it is "
-                               "the right photo and that it is exposed")
+            raise DelightError(
+                f"camera {name!r}: its photo is black wherever it sees the mesh: check that it is "
+                "the right photo and that it is exposed"
+            )
         if negative.any():
             mask[mask] = ~negative
             warnings.append(f"camera {name!r}: {int(negative.sum())} negative pixels on the mesh were left out")
@@ -101,7 +106,7 @@ def check_uv_layout(tri_uv, tri_pos, size) -> list:
     q[..., 0] = tri_uv[..., 0] * n - 0.5
     q[..., 1] = (1.0 - tri_uv[..., 1]) * n - 0.5
     e1, e2 = q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])          # texels
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])  # texels
     area = 0.5 * np.linalg.norm(np.cross(tri_pos[:, 1] - tri_pos[:, 0], tri_pos[:, 2] - tri_pos[:, 0]), axis=1)
     total = float(area.sum())
     warnings = []
@@ -109,19 +114,25 @@ def check_uv_layout(tri_uv, tri_pos, size) -> list:
         return warnings
     flat = uv_area < 1e-6 * max(float(np.median(uv_area)), 1e-12)
     if flat.any():
-        warnings.append(f"UV layout: {int(flat.sum())} faces ({100 * area[flat].sum() / total:.1f} % of the "
-                        "surface) have no area in the UV map, so their albedo cannot be stored: unwrap them")
+        warnings.append(
+            f"UV layout: {int(flat.sum())} faces ({100 * area[flat].sum() / total:.1f} % of the "
+            "surface) have no area in the UV map, so their albedo cannot be stored: unwrap them"
+        )
     stretched = ~flat & uv_stretched(tri_uv, tri_pos)
     if stretched.any():
-        warnings.append(f"UV layout: {int(stretched.sum())} faces ({100 * area[stretched].sum() / total:.1f} % "
-                        f"of the surface) are stretched more than {STRETCH_FACTOR:g}x in the UV map (n-gons across a "
-                        "seam?): re-unwrap them")
+        warnings.append(
+            f"UV layout: {int(stretched.sum())} faces ({100 * area[stretched].sum() / total:.1f} % "
+            f"of the surface) are stretched more than {STRETCH_FACTOR:g}x in the UV map (n-gons across a "
+            "seam?): re-unwrap them"
+        )
     # Overlaps are measured on at most a 512^2 grid: enough for a share, and cheap at any texture size.
     m = min(n, 512)
     cover = _centre_coverage(q[~flat] * (m / n) + 0.5 * (m / n - 1.0), m)
     used = np.count_nonzero(cover)
     over = np.count_nonzero(cover > 1)
     if used and over / used > 0.001:
-        warnings.append(f"UV layout: {100 * over / used:.1f} % of the used texels are covered by overlapping UV "
-                        "islands, which then share one albedo: unwrap without overlaps")
+        warnings.append(
+            f"UV layout: {100 * over / used:.1f} % of the used texels are covered by overlapping UV "
+            "islands, which then share one albedo: unwrap without overlaps"
+        )
     return warnings

@@ -31,6 +31,7 @@ too), Ctrl+C with 130, a usage error (an unknown option, a word where a number
 belongs) with 2. The solver's options are built from :data:`core.options.SPEC`,
 as the add-on's.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,7 +57,6 @@ __all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
 SH_BASIS = list(SH_BASIS_NAMES)
 
 
-
 def _output_files(problem, domain) -> dict:
     """The files a solve writes besides report.json, by key (see the module docstring)."""
     files = {"views": view_files(problem.names)}
@@ -66,8 +66,7 @@ def _output_files(problem, domain) -> dict:
     return files
 
 
-def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, overwrite=False,
-                  cancel=None) -> dict:
+def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, overwrite=False, cancel=None) -> dict:
     """Write a solver :class:`~core.solve.solver.Result` into ``out_dir``, all or nothing.
 
     See the module docstring for the files and :func:`core.io.outputs.write_outputs`
@@ -93,14 +92,16 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
         raise ValueError(f"result: {len(result.views)} views for {m} in the problem")
     for i, v in enumerate(result.views):
         if np.shape(v) != problem.images[i].shape:
-            raise ValueError(f"result: view {i} has shape {np.shape(v)}, "
-                             f"expected {problem.images[i].shape}")
+            raise ValueError(f"result: view {i} has shape {np.shape(v)}, expected {problem.images[i].shape}")
     files = _output_files(problem, "image" if result.texture is None else "texture")
     contents = {}
     if result.texture is not None:
         tex = np.asarray(result.texture, dtype=np.float32)
-        seen = (np.all(np.isfinite(tex if tex.ndim == 3 else tex[..., None]), axis=2) if result.seen is None
-                else np.asarray(result.seen, dtype=bool))
+        seen = (
+            np.all(np.isfinite(tex if tex.ndim == 3 else tex[..., None]), axis=2)
+            if result.seen is None
+            else np.asarray(result.seen, dtype=bool)
+        )
         contents[files["albedo"]] = rgba(tex, seen)
     for i, rel in enumerate(files["views"]):
         contents[rel] = rgba(result.views[i], problem.masks[i])
@@ -123,20 +124,27 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m core",
-        description="Multi-view reflectance estimation (Melou et al. 2018) without Blender.")
+        prog="python -m core", description="Multi-view reflectance estimation (Melou et al. 2018) without Blender."
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     s = sub.add_parser(
-        "solve", help="solve a problem bundle and write reflectance, albedo and lighting",
+        "solve",
+        help="solve a problem bundle and write reflectance, albedo and lighting",
         description="Solve a problem bundle (.npz, see core.io.bundle) and write views/<name>.exr, "
-                    "albedo.exr (texture domain), lighting.json and report.json into DIR.")
+        "albedo.exr (texture domain), lighting.json and report.json into DIR.",
+    )
     s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")
     s.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
-    s.add_argument("--overwrite", action="store_true",
-                   help="replace files in the way that Delight did not write (its own are always replaced)")
-    s.add_argument("--domain", choices=("texture", "image"),
-                   help="unknowns per texel or per pixel (default: texture if the bundle has a "
-                        "texture layout, else image)")
+    s.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace files in the way that Delight did not write (its own are always replaced)",
+    )
+    s.add_argument(
+        "--domain",
+        choices=("texture", "image"),
+        help="unknowns per texel or per pixel (default: texture if the bundle has a texture layout, else image)",
+    )
     add_arguments(s, SOLVER_FIELDS)
     s.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     return parser
@@ -151,18 +159,31 @@ def _solve(args) -> int:
         raise DelightError(str(exc)) from exc
     domain = args.domain or ("texture" if problem.texture is not None else "image")
     if domain == "texture" and problem.texture is None:
-        raise DelightError(f"bundle {args.bundle}: the texture domain needs a texture layout "
-                           "(texel_pos), which the bundle lacks; use --domain image")
+        raise DelightError(
+            f"bundle {args.bundle}: the texture domain needs a texture layout "
+            "(texel_pos), which the bundle lacks; use --domain image"
+        )
     files = _output_files(problem, domain)
     # Before the solve: a file in the way or an unwritable folder.
-    prepare_outputs(args.out, [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
-                    args.overwrite, inputs=[args.bundle])
+    prepare_outputs(
+        args.out,
+        [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
+        args.overwrite,
+        inputs=[args.bundle],
+    )
     lam = args.lam
     if lam is None:
         lam, variation = auto_lambda(problem)
         print(describe_lambda(lam, variation, auto=True), file=sys.stderr, flush=True)
-    params = SolverParams(domain=domain, lam=lam, mu=args.mu, delta=args.delta,
-                          max_iter=args.max_iter, data_model=args.data_model, gauss_newton=args.gauss_newton)
+    params = SolverParams(
+        domain=domain,
+        lam=lam,
+        mu=args.mu,
+        delta=args.delta,
+        max_iter=args.max_iter,
+        data_model=args.data_model,
+        gauss_newton=args.gauss_newton,
+    )
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     try:
@@ -184,5 +205,5 @@ def main(argv=None) -> int:
         return 2
     try:
         return _solve(args)
-    except (Exception, KeyboardInterrupt) as exc:   # one line for any failure; the traceback with --debug
+    except (Exception, KeyboardInterrupt) as exc:  # one line for any failure; the traceback with --debug
         return report_failure(exc, sys.stderr, debug=args.debug, front="core")

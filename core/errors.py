@@ -1,11 +1,11 @@
 """The errors a run reports to the user: bad input, and a cancel; and the one line that reports any failure."""
+
 from __future__ import annotations
 
 import errno
 import traceback
 
-__all__ = ["DelightError", "Cancelled", "REPORTED", "DEBUG_HELP", "is_expected", "failure_message",
-           "report_failure"]
+__all__ = ["DelightError", "Cancelled", "REPORTED", "DEBUG_HELP", "is_expected", "failure_message", "report_failure"]
 
 
 class DelightError(Exception):
@@ -46,6 +46,7 @@ def is_expected(exc: BaseException) -> bool:
 def _setting(name: str, front: str) -> str:
     """A setting as a message names it: "the working resolution (--working-res)", or its label in the panel."""
     from .options import OPTIONS
+
     o = OPTIONS[name]
     if front == "cli":
         return f"the {o.label.split(' (')[0].lower()} ({o.flag})"
@@ -53,9 +54,13 @@ def _setting(name: str, front: str) -> str:
 
 
 def _os_error(exc: OSError) -> str:
-    reasons = {errno.EACCES: "permission denied", errno.EPERM: "permission denied",
-               errno.ENOSPC: "the disk is full", errno.EROFS: "the file system is read-only",
-               errno.ENOENT: "no such file or folder"}
+    reasons = {
+        errno.EACCES: "permission denied",
+        errno.EPERM: "permission denied",
+        errno.ENOSPC: "the disk is full",
+        errno.EROFS: "the file system is read-only",
+        errno.ENOENT: "no such file or folder",
+    }
     if hasattr(errno, "EDQUOT"):
         reasons[errno.EDQUOT] = "the disk quota is exceeded"
     why = reasons.get(exc.errno) or exc.strerror or str(exc) or type(exc).__name__
@@ -78,8 +83,7 @@ def failure_message(exc: BaseException, front: str = "cli") -> str:
     if isinstance(exc, MemoryError):
         if front == "core":
             return "out of memory: solve a smaller bundle (fewer or smaller photos, a smaller texture)"
-        return (f"out of memory: lower {_setting('working_res_mp', front)} "
-                f"or {_setting('texture_size', front)}")
+        return f"out of memory: lower {_setting('working_res_mp', front)} or {_setting('texture_size', front)}"
     if isinstance(exc, (DelightError, ValueError)):
         return str(exc)
     if isinstance(exc, OSError):

@@ -5,6 +5,7 @@ line (:mod:`blender_addon.cli`) and the core's (:mod:`core.cli`) are all built f
 :func:`check` is the one range check, so every front end accepts the same values and refuses the others with the
 same words. The solver's defaults come from :class:`core.solve.solver.SolverParams`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,12 +18,25 @@ from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
 from .solve.lighting import ALBEDO_LAMBDA
 from .solve.solver import SolverParams
 
-__all__ = ["Option", "SPEC", "OPTIONS", "RUN_FIELDS", "SOLVER_FIELDS", "Options", "check", "validate",
-           "requirement", "add_arguments", "cli_help"]
+__all__ = [
+    "Option",
+    "SPEC",
+    "OPTIONS",
+    "RUN_FIELDS",
+    "SOLVER_FIELDS",
+    "Options",
+    "check",
+    "validate",
+    "requirement",
+    "add_arguments",
+    "cli_help",
+]
 
 _SOLVER = SolverParams()
-_AUTO_LAMBDA = (f"picked from how much the lighting changes between the photos: {LAMBDA_FIXED:g} under one "
-                f"lighting, {LAMBDA_VARYING:g} when it changes")
+_AUTO_LAMBDA = (
+    f"picked from how much the lighting changes between the photos: {LAMBDA_FIXED:g} under one "
+    f"lighting, {LAMBDA_VARYING:g} when it changes"
+)
 
 
 @dataclass(frozen=True)
@@ -102,85 +116,286 @@ class Option:
 
 
 SPEC = (
-    Option("object_name", "str", None, "Mesh", "The mesh to delight; its active UV map is used "
-           "(default: the active object)", flag="--object", metavar="NAME"),
-    Option("camera_names", "names", None, "Cameras", "The cameras whose photos are used (default: all)",
-           flag="--cameras", metavar="NAME"),
-    Option("cameras", "choice", "ALL", "Cameras", "Which cameras' photos are used",
-           choices=(("ALL", "All", "Every camera in the scene"),
-                    ("SELECTED", "Selected", "The selected cameras"),
-                    ("COLLECTION", "Collection", "The cameras in one collection"))),
-    Option("camera_collection", "str", None, "Camera collection",
-           "The collection whose cameras are used (Cameras: Collection)"),
-    Option("selected_only", "bool", False, "Selected cameras only",
-           "Use the selected cameras when no camera is named"),
-    Option("images_dir", "dir", None, "Images folder", "Folder of photos named like the cameras, for cameras "
-           "without a background image or image plane", flag="--images", metavar="DIR"),
-    Option("method", "choice", "texture", "Method", "How the albedo is estimated",
-           choices=(("texture", "Texture", "Solve one albedo per texel (fast)"),
-                    ("image", "Image", "Solve per photo pixel with cross-view consistency, as in the paper, "
-                                       "then fuse (slower)"),
-                    ("project", "Project only", "No delighting: fuse the photos as they are, for comparison")),
-           flag="--method"),
+    Option(
+        "object_name",
+        "str",
+        None,
+        "Mesh",
+        "The mesh to delight; its active UV map is used (default: the active object)",
+        flag="--object",
+        metavar="NAME",
+    ),
+    Option(
+        "camera_names",
+        "names",
+        None,
+        "Cameras",
+        "The cameras whose photos are used (default: all)",
+        flag="--cameras",
+        metavar="NAME",
+    ),
+    Option(
+        "cameras",
+        "choice",
+        "ALL",
+        "Cameras",
+        "Which cameras' photos are used",
+        choices=(
+            ("ALL", "All", "Every camera in the scene"),
+            ("SELECTED", "Selected", "The selected cameras"),
+            ("COLLECTION", "Collection", "The cameras in one collection"),
+        ),
+    ),
+    Option(
+        "camera_collection",
+        "str",
+        None,
+        "Camera collection",
+        "The collection whose cameras are used (Cameras: Collection)",
+    ),
+    Option("selected_only", "bool", False, "Selected cameras only", "Use the selected cameras when no camera is named"),
+    Option(
+        "images_dir",
+        "dir",
+        None,
+        "Images folder",
+        "Folder of photos named like the cameras, for cameras without a background image or image plane",
+        flag="--images",
+        metavar="DIR",
+    ),
+    Option(
+        "method",
+        "choice",
+        "texture",
+        "Method",
+        "How the albedo is estimated",
+        choices=(
+            ("texture", "Texture", "Solve one albedo per texel (fast)"),
+            (
+                "image",
+                "Image",
+                "Solve per photo pixel with cross-view consistency, as in the paper, then fuse (slower)",
+            ),
+            ("project", "Project only", "No delighting: fuse the photos as they are, for comparison"),
+        ),
+        flag="--method",
+    ),
     Option("auto_lambda", "bool", True, "Automatic lambda", f"Let lambda be {_AUTO_LAMBDA}"),
-    Option("lam", "float", None, "Lambda (smoothness)", "Weight of the smoothness (total variation) term: "
-           "larger removes more shading, and more detail with it", min=0.0, soft_min=0.0, soft_max=100.0,
-           flag="--lambda", metavar="L|auto", auto=_AUTO_LAMBDA, shown=_SOLVER.lam, noun="lambda"),
-    Option("albedo_lam", "float", ALBEDO_LAMBDA, "Albedo lambda", "Smoothness weight of the second stage, "
-           "which solves the albedo again under the lighting of the first; smaller keeps finer detail",
-           min=0.0, soft_min=0.0, soft_max=10.0, flag="--albedo-lambda", metavar="L|none",
-           none="one stage, as the paper", noun="albedo lambda"),
-    Option("lighting", "choice", "auto", "Lighting", "How the lighting of the photos is modelled",
-           choices=(("auto", "Auto", "Coupled when the photos share one light, per photo when it moves "
-                                     "(measured on the photos)"),
-                    ("coupled", "Coupled", "One lighting per photo, held to one shared world lighting"),
-                    ("shared", "Shared", "One world lighting for all photos, times an exposure and white "
-                                         "balance gain per photo"),
-                    ("per_view", "Per photo", "A free lighting per photo, as the paper")),
-           flag="--lighting"),
-    Option("occlusion", "bool", True, "Occlusion", "Shade with the light each point really receives "
-           "(self-shadowing by the mesh), not the paper's shading by the normal alone", flag="--occlusion"),
-    Option("mask_clipped", "bool", False, "Leave out clipped pixels", "Leave the pixels at an 8-bit photo's "
-           "ceiling out of the solve", flag="--mask-clipped"),
-    Option("mu", "float", _SOLVER.mu, "Mu (consistency)", "Weight of the cross-view consistency term, for "
-           "the Image method", min=0.0, soft_min=0.0, soft_max=100.0, flag="--mu", metavar="M", noun="mu"),
-    Option("max_iter", "int", _SOLVER.max_iter, "Iterations", "Most solver iterations at the full size "
-           "(coarser copies of the problem are solved first)", min=1, soft_min=1, soft_max=500,
-           flag="--max-iter", metavar="K"),
-    Option("working_res_mp", "float", 1.0, "Working resolution (MP)", "Photos are downscaled to at most this "
-           "many megapixels before solving", min=0.0, min_open=True, soft_min=0.01, soft_max=16.0, unit="MP",
-           flag="--working-res", metavar="MP", noun="working resolution (MP)"),
-    Option("texture_size", "int", 1024, "Texture size (px)", "Width and height of the square albedo texture",
-           min=8, max=16384, soft_min=64, soft_max=8192, unit="px", flag="--texture-size", metavar="N",
-           noun="texture size"),
-    Option("out_dir", "dir", None, "Output folder", "Where the EXR textures and reports go "
-           "(empty: a folder delight_<mesh> beside the .blend)", flag="--out", metavar="DIR", shown=""),
-    Option("save_blend", "bool", False, "Save the .blend", "Save the .blend with the new material "
-           "(never otherwise)", flag="--save"),
-    Option("overwrite", "bool", False, "Overwrite files", "Replace files in the way that Delight did not write "
-           "(its own earlier outputs are always replaced); otherwise the run stops before the bake",
-           flag="--overwrite"),
-    Option("delta", "float", _SOLVER.delta, "Huber delta", "Huber loss parameter: residuals below it count "
-           "quadratically, above it linearly", min=0.0, min_open=True, flag="--delta", metavar="D",
-           noun="Huber delta"),
-    Option("data_model", "choice", _SOLVER.data_model, "Data model", "Texture domain: how a photo pixel sees "
-           "the texels",
-           choices=(("splat", "Splat", "A pixel splats onto its 4 texels"),
-                    ("interpolate", "Interpolate", "A pixel sees the bilinear mix of its 4 texels, as a "
-                                                   "renderer does (slower, exact for a textured surface)")),
-           flag="--data-model"),
-    Option("gauss_newton", "bool", _SOLVER.gauss_newton, "Gauss-Newton step", "Add a joint Gauss-Newton step "
-           "on reflectance and lighting to each iteration (about 3x slower; helps where lighting varies "
-           "between views and lambda is small)", flag="--gauss-newton"),
+    Option(
+        "lam",
+        "float",
+        None,
+        "Lambda (smoothness)",
+        "Weight of the smoothness (total variation) term: larger removes more shading, and more detail with it",
+        min=0.0,
+        soft_min=0.0,
+        soft_max=100.0,
+        flag="--lambda",
+        metavar="L|auto",
+        auto=_AUTO_LAMBDA,
+        shown=_SOLVER.lam,
+        noun="lambda",
+    ),
+    Option(
+        "albedo_lam",
+        "float",
+        ALBEDO_LAMBDA,
+        "Albedo lambda",
+        "Smoothness weight of the second stage, "
+        "which solves the albedo again under the lighting of the first; smaller keeps finer detail",
+        min=0.0,
+        soft_min=0.0,
+        soft_max=10.0,
+        flag="--albedo-lambda",
+        metavar="L|none",
+        none="one stage, as the paper",
+        noun="albedo lambda",
+    ),
+    Option(
+        "lighting",
+        "choice",
+        "auto",
+        "Lighting",
+        "How the lighting of the photos is modelled",
+        choices=(
+            (
+                "auto",
+                "Auto",
+                "Coupled when the photos share one light, per photo when it moves (measured on the photos)",
+            ),
+            ("coupled", "Coupled", "One lighting per photo, held to one shared world lighting"),
+            (
+                "shared",
+                "Shared",
+                "One world lighting for all photos, times an exposure and white balance gain per photo",
+            ),
+            ("per_view", "Per photo", "A free lighting per photo, as the paper"),
+        ),
+        flag="--lighting",
+    ),
+    Option(
+        "occlusion",
+        "bool",
+        True,
+        "Occlusion",
+        "Shade with the light each point really receives "
+        "(self-shadowing by the mesh), not the paper's shading by the normal alone",
+        flag="--occlusion",
+    ),
+    Option(
+        "mask_clipped",
+        "bool",
+        False,
+        "Leave out clipped pixels",
+        "Leave the pixels at an 8-bit photo's ceiling out of the solve",
+        flag="--mask-clipped",
+    ),
+    Option(
+        "mu",
+        "float",
+        _SOLVER.mu,
+        "Mu (consistency)",
+        "Weight of the cross-view consistency term, for the Image method",
+        min=0.0,
+        soft_min=0.0,
+        soft_max=100.0,
+        flag="--mu",
+        metavar="M",
+        noun="mu",
+    ),
+    Option(
+        "max_iter",
+        "int",
+        _SOLVER.max_iter,
+        "Iterations",
+        "Most solver iterations at the full size (coarser copies of the problem are solved first)",
+        min=1,
+        soft_min=1,
+        soft_max=500,
+        flag="--max-iter",
+        metavar="K",
+    ),
+    Option(
+        "working_res_mp",
+        "float",
+        1.0,
+        "Working resolution (MP)",
+        "Photos are downscaled to at most this many megapixels before solving",
+        min=0.0,
+        min_open=True,
+        soft_min=0.01,
+        soft_max=16.0,
+        unit="MP",
+        flag="--working-res",
+        metavar="MP",
+        noun="working resolution (MP)",
+    ),
+    Option(
+        "texture_size",
+        "int",
+        1024,
+        "Texture size (px)",
+        "Width and height of the square albedo texture",
+        min=8,
+        max=16384,
+        soft_min=64,
+        soft_max=8192,
+        unit="px",
+        flag="--texture-size",
+        metavar="N",
+        noun="texture size",
+    ),
+    Option(
+        "out_dir",
+        "dir",
+        None,
+        "Output folder",
+        "Where the EXR textures and reports go (empty: a folder delight_<mesh> beside the .blend)",
+        flag="--out",
+        metavar="DIR",
+        shown="",
+    ),
+    Option(
+        "save_blend",
+        "bool",
+        False,
+        "Save the .blend",
+        "Save the .blend with the new material (never otherwise)",
+        flag="--save",
+    ),
+    Option(
+        "overwrite",
+        "bool",
+        False,
+        "Overwrite files",
+        "Replace files in the way that Delight did not write "
+        "(its own earlier outputs are always replaced); otherwise the run stops before the bake",
+        flag="--overwrite",
+    ),
+    Option(
+        "delta",
+        "float",
+        _SOLVER.delta,
+        "Huber delta",
+        "Huber loss parameter: residuals below it count quadratically, above it linearly",
+        min=0.0,
+        min_open=True,
+        flag="--delta",
+        metavar="D",
+        noun="Huber delta",
+    ),
+    Option(
+        "data_model",
+        "choice",
+        _SOLVER.data_model,
+        "Data model",
+        "Texture domain: how a photo pixel sees the texels",
+        choices=(
+            ("splat", "Splat", "A pixel splats onto its 4 texels"),
+            (
+                "interpolate",
+                "Interpolate",
+                "A pixel sees the bilinear mix of its 4 texels, as a "
+                "renderer does (slower, exact for a textured surface)",
+            ),
+        ),
+        flag="--data-model",
+    ),
+    Option(
+        "gauss_newton",
+        "bool",
+        _SOLVER.gauss_newton,
+        "Gauss-Newton step",
+        "Add a joint Gauss-Newton step "
+        "on reflectance and lighting to each iteration (about 3x slower; helps where lighting varies "
+        "between views and lambda is small)",
+        flag="--gauss-newton",
+    ),
 )
 
 #: The settings by name.
 OPTIONS = {o.name: o for o in SPEC}
 
 #: The fields of :class:`Options`, in order: what a run needs.
-RUN_FIELDS = ("object_name", "camera_names", "images_dir", "selected_only", "lam", "albedo_lam", "lighting",
-              "occlusion", "mask_clipped", "mu", "max_iter", "working_res_mp", "texture_size", "method", "out_dir",
-              "save_blend", "overwrite")
+RUN_FIELDS = (
+    "object_name",
+    "camera_names",
+    "images_dir",
+    "selected_only",
+    "lam",
+    "albedo_lam",
+    "lighting",
+    "occlusion",
+    "mask_clipped",
+    "mu",
+    "max_iter",
+    "working_res_mp",
+    "texture_size",
+    "method",
+    "out_dir",
+    "save_blend",
+    "overwrite",
+)
 
 #: The solver's settings that ``python -m core solve`` takes.
 SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton")
@@ -213,7 +428,7 @@ def check(name: str, value):
     integer between 8 and 16384, got 3".
     """
     o = OPTIONS[name]
-    if value is None and (o.default is None or o.none):   # chosen for you (auto lambda, ...), or "none"
+    if value is None and (o.default is None or o.none):  # chosen for you (auto lambda, ...), or "none"
         return value
     if o.kind == "choice":
         if value not in o.values:
@@ -247,8 +462,8 @@ def _parser(option: Option):
         try:
             return kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{option.what} must be {requirement(option)}, got {text!r}") \
-                from None
+            raise argparse.ArgumentTypeError(f"{option.what} must be {requirement(option)}, got {text!r}") from None
+
     return parse
 
 
@@ -286,25 +501,41 @@ def add_arguments(parser: argparse.ArgumentParser, names) -> None:
 
 
 def _options_class():
-    types = {"int": "int", "float": "float", "bool": "bool", "str": "str", "dir": "str", "names": "list",
-             "choice": "str"}
-    lines = ["What to delight and how; ``None`` means chosen for you. Built from :data:`SPEC`.", "",
-             "Parameters", "----------"]
+    types = {
+        "int": "int",
+        "float": "float",
+        "bool": "bool",
+        "str": "str",
+        "dir": "str",
+        "names": "list",
+        "choice": "str",
+    }
+    lines = [
+        "What to delight and how; ``None`` means chosen for you. Built from :data:`SPEC`.",
+        "",
+        "Parameters",
+        "----------",
+    ]
     fields_ = []
     for name in RUN_FIELDS:
         o = OPTIONS[name]
         kind = types[o.kind] + (" or None" if o.default is None else "")
         lines += [f"{name} : {kind}", f"    {o.label}: {o.help}."]
         fields_.append((name, kind.replace(" or None", " | None"), field(default=o.default)))
-    lines += ["solver : dict or None", "    Further :class:`core.solve.solver.SolverParams` fields, for experts and "
-              "benchmarks (the settings above take precedence)."]
+    lines += [
+        "solver : dict or None",
+        "    Further :class:`core.solve.solver.SolverParams` fields, for experts and "
+        "benchmarks (the settings above take precedence).",
+    ]
     fields_.append(("solver", "dict | None", field(default=None)))
 
     def validate_self(self):
         """Raise :class:`DelightError` for a bad value (see :func:`check`)."""
         validate(self)
-    return make_dataclass("Options", fields_, namespace={
-        "__doc__": "\n".join(lines), "__module__": __name__, "validate": validate_self})
+
+    return make_dataclass(
+        "Options", fields_, namespace={"__doc__": "\n".join(lines), "__module__": __name__, "validate": validate_self}
+    )
 
 
 #: What to delight and how (a dataclass with the :data:`RUN_FIELDS`; ``validate()`` checks it).

@@ -3,6 +3,7 @@
 The Blender layer reads the scene and bakes it (:mod:`core.scene`, :mod:`core.geometry.bake`), calls
 :func:`compute`, and writes the results. :func:`compute` never touches bpy, so it can run in a worker thread.
 """
+
 from __future__ import annotations
 
 import time
@@ -32,10 +33,10 @@ METHODS = OPTIONS["method"].values
 class Computed:
     """The results as arrays (output of :func:`compute`)."""
 
-    albedo: np.ndarray              # (N, N, C) filled texture, row 0 at the top
-    seen: np.ndarray                # (N, N) bool
-    views: list                     # per view (H, W, C) reflectance
-    sigma: np.ndarray | None        # (m, C, 9) lighting, None for "project"
+    albedo: np.ndarray  # (N, N, C) filled texture, row 0 at the top
+    seen: np.ndarray  # (N, N) bool
+    views: list  # per view (H, W, C) reflectance
+    sigma: np.ndarray | None  # (m, C, 9) lighting, None for "project"
     energy: list
     iterations: int
     info: dict = field(default_factory=dict)
@@ -53,8 +54,9 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
-def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None,
-            cancel=None) -> Computed:
+def compute(
+    options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None, cancel=None
+) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
     ``times`` (if given) receives the seconds spent in "solve" and "fuse".
@@ -85,25 +87,37 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     correspondences = None
     if opt.method == "image":
         from .geometry.correspondences import find_correspondences
-        correspondences = find_correspondences([v.camera for v in inputs.views], [b.position for b in bakes],
-                                               solve_masks, [b.normal for b in bakes])
+
+        correspondences = find_correspondences(
+            [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
+        )
         check_cancel(cancel)
     transfer = None
     if opt.occlusion and opt.method != "project":
         from .geometry.transfer import pixel_transfer
+
         solve_progress(0.0, "occlusion")
-        transfer = pixel_transfer(inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes],
-                                  [b.position for b in bakes], weights)
+        transfer = pixel_transfer(
+            inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes], [b.position for b in bakes], weights
+        )
         check_cancel(cancel)
-    problem = Problem(images=photos, masks=solve_masks, normals=[b.normal for b in bakes],
-                      correspondences=correspondences, uv=uvs,
-                      texture=layout if opt.method == "texture" else None,
-                      view_weight=weights, names=[v.name for v in inputs.views], transfer=transfer)
+    problem = Problem(
+        images=photos,
+        masks=solve_masks,
+        normals=[b.normal for b in bakes],
+        correspondences=correspondences,
+        uv=uvs,
+        texture=layout if opt.method == "texture" else None,
+        view_weight=weights,
+        names=[v.name for v in inputs.views],
+        transfer=transfer,
+    )
     result = None
     lam, variation, lighting = opt.lam, None, opt.lighting
     if opt.method != "project":
         from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
         from .solve.lighting import choose_lighting
+
         if lam is None or lighting == "auto":
             auto, variation = auto_lambda(problem)
             if lam is None:
@@ -112,8 +126,17 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
                 solve_progress(0.0, describe_lambda(lam, variation, auto=True))
             if lighting == "auto":
                 lighting = choose_lighting(variation)
-        params = SolverParams(**dict(opt.solver or {}, domain=opt.method, lam=float(lam), mu=float(opt.mu),
-                                     max_iter=int(opt.max_iter), albedo_lam=opt.albedo_lam, lighting=lighting))
+        params = SolverParams(
+            **dict(
+                opt.solver or {},
+                domain=opt.method,
+                lam=float(lam),
+                mu=float(opt.mu),
+                max_iter=int(opt.max_iter),
+                albedo_lam=opt.albedo_lam,
+                lighting=lighting,
+            )
+        )
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
     times["solve"] = time.perf_counter() - t
     check_cancel(cancel)
@@ -134,10 +157,21 @@ def compute(options: Options, inputs: SceneInputs, bakes: list, times: dict | No
     times["fuse"] = time.perf_counter() - t
     fuse_progress(1.0, "done")
     check_cancel(cancel)
-    return Computed(albedo=np.asarray(albedo, dtype=np.float32), seen=seen, views=views,
-                    sigma=None if result is None else np.asarray(result.sigma),
-                    energy=[] if result is None else [float(e) for e in result.energy],
-                    iterations=0 if result is None else int(result.iterations),
-                    info={} if result is None else dict(result.info, lam=lam, lighting_variation=variation,
-                                                        albedo_lam=opt.albedo_lam, lighting_mode=lighting,
-                                                        occlusion=bool(opt.occlusion)))
+    return Computed(
+        albedo=np.asarray(albedo, dtype=np.float32),
+        seen=seen,
+        views=views,
+        sigma=None if result is None else np.asarray(result.sigma),
+        energy=[] if result is None else [float(e) for e in result.energy],
+        iterations=0 if result is None else int(result.iterations),
+        info={}
+        if result is None
+        else dict(
+            result.info,
+            lam=lam,
+            lighting_variation=variation,
+            albedo_lam=opt.albedo_lam,
+            lighting_mode=lighting,
+            occlusion=bool(opt.occlusion),
+        ),
+    )

@@ -6,6 +6,7 @@ stage's share of the whole run (:data:`STAGES`); the stages call :func:`check_ca
 lines print progress with :class:`ProgressPrinter`; the GUI operator draws a bar from a :class:`ProgressState`.
 Both add the time left that :class:`TimeLeft` estimates.
 """
+
 from __future__ import annotations
 
 import re
@@ -14,12 +15,19 @@ import time
 
 from .errors import Cancelled
 
-__all__ = ["STAGES", "stage_progress", "check_cancel", "TimeLeft", "format_time_left", "short_message",
-           "ProgressState", "ProgressPrinter"]
+__all__ = [
+    "STAGES",
+    "stage_progress",
+    "check_cancel",
+    "TimeLeft",
+    "format_time_left",
+    "short_message",
+    "ProgressState",
+    "ProgressPrinter",
+]
 
 #: Share of the progress bar of each stage of a run, (start, end).
-STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95),
-          "write": (0.95, 1.0)}
+STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
 
 
 def stage_progress(progress, stage: str):
@@ -32,6 +40,7 @@ def stage_progress(progress, stage: str):
     def report(fraction=0.0, message=""):
         if progress is not None:
             progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), f"{stage}: {message}" if message else stage)
+
     return report
 
 
@@ -62,8 +71,8 @@ class TimeLeft:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
         self.warmup, self.min_progress, self.smoothing = warmup, min_progress, smoothing
-        self._start = None          # (fraction, time) of the first pair
-        self._estimate = None       # seconds left at self._time
+        self._start = None  # (fraction, time) of the first pair
+        self._estimate = None  # seconds left at self._time
         self._time = None
 
     def update(self, fraction: float, now: float) -> float | None:
@@ -78,7 +87,7 @@ class TimeLeft:
             raw = (now - t0) * (1.0 - fraction) / (fraction - f0)
             if self._estimate is None:
                 self._estimate = raw
-            else:   # the last estimate, aged to now, moved towards the new one
+            else:  # the last estimate, aged to now, moved towards the new one
                 aged = max(self._estimate - (now - self._time), 0.0)
                 self._estimate = aged + self.smoothing * (raw - aged)
             self._time = now
@@ -181,6 +190,9 @@ class ProgressPrinter:
         fraction = float(fraction)
         left = format_time_left(self.time_left.update(fraction, self.clock()))
         if message != self._last[0] or abs(fraction - self._last[1]) >= self.step:
-            print(f"delight: {100 * fraction:5.1f}% {message}" + (f" ({left})" if left else ""),
-                  file=self.stream or sys.stdout, flush=True)
+            print(
+                f"delight: {100 * fraction:5.1f}% {message}" + (f" ({left})" if left else ""),
+                file=self.stream or sys.stdout,
+                flush=True,
+            )
             self._last = (message, fraction)

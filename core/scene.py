@@ -1,4 +1,5 @@
 """The scene as plain arrays: the target mesh, and each camera with its photo (the pipeline's input)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -55,4 +56,4 @@ class SceneInputs:
     object_name: str
     mesh: MeshArrays
     views: list = field(default_factory=list)
-    skipped: list = field(default_factory=list)   # why cameras were left out, one line each
+    skipped: list = field(default_factory=list)  # why cameras were left out, one line each

@@ -6,10 +6,10 @@ import sys
 import numpy as np
 import pytest
 
-from core.io.bundle import load_bundle, save_bundle
 from core.cli import SH_BASIS, main, write_outputs
-from core.io.names import unique_names
+from core.io.bundle import load_bundle, save_bundle
 from core.io.exr import read_exr
+from core.io.names import unique_names
 from core.solve.problem import Correspondences, Problem, TextureLayout
 from core.solve.solver import Result, SolverParams
 
@@ -17,6 +17,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 # ---------------------------------------------------------------- synthetic data
+
 
 def _view_axes(k):
     """Orthographic camera k: right, down and forward unit vectors (CV convention)."""
@@ -36,12 +37,12 @@ def _sphere_uv(p):
 
 def _sh(n):
     n1, n2, n3 = n[..., 0], n[..., 1], n[..., 2]
-    return np.stack([n1, n2, n3, np.ones_like(n1), n1 * n2, n1 * n3, n2 * n3,
-                     n1 ** 2 - n2 ** 2, 3 * n3 ** 2 - 1], axis=-1)
+    return np.stack([n1, n2, n3, np.ones_like(n1), n1 * n2, n1 * n3, n2 * n3, n1**2 - n2**2, 3 * n3**2 - 1], axis=-1)
 
 
-def make_problem(sizes=((24, 32),) * 3, channels=3, texture=True, corr=True, weights=True,
-                 names=None, tex_size=16, seed=0):
+def make_problem(
+    sizes=((24, 32),) * 3, channels=3, texture=True, corr=True, weights=True, names=None, tex_size=16, seed=0
+):
     """Views of a unit sphere with a two-tone albedo under per-view SH lighting."""
     rng = np.random.default_rng(seed)
     images, masks, normals, uvs, vws, frames = [], [], [], [], [], []
@@ -50,8 +51,8 @@ def make_problem(sizes=((24, 32),) * 3, channels=3, texture=True, corr=True, wei
         scale = 0.45 * min(h, w)
         y, x = np.mgrid[0:h, 0:w].astype(np.float64)
         a, b = (x - (w - 1) / 2) / scale, (y - (h - 1) / 2) / scale
-        mask = a ** 2 + b ** 2 < 0.9
-        depth = np.sqrt(np.clip(1 - a ** 2 - b ** 2, 0, None))
+        mask = a**2 + b**2 < 0.9
+        depth = np.sqrt(np.clip(1 - a**2 - b**2, 0, None))
         p = a[..., None] * right + b[..., None] * down - depth[..., None] * forward
         albedo = np.where(p[..., 2:3] > 0.2, [0.8, 0.5, 0.3][:channels], [0.3, 0.4, 0.6][:channels])
         sigma = np.zeros((channels, 9))
@@ -77,10 +78,11 @@ def make_problem(sizes=((24, 32),) * 3, channels=3, texture=True, corr=True, wei
                 x = pts @ right * scale + (w - 1) / 2
                 y = pts @ down * scale + (h - 1) / 2
                 ok = (pts @ forward < -0.2) & (x > 0) & (y > 0) & (x < w - 1) & (y < h - 1)
-                va += [i] * int(ok.sum()); vb += [j] * int(ok.sum())
-                pa.append(idx[ok]); xyb.append(np.stack([x[ok], y[ok]], 1))
-        c = Correspondences(va, np.concatenate(pa), vb, np.concatenate(xyb),
-                            rng.uniform(0.5, 1.0, len(va)))
+                va += [i] * int(ok.sum())
+                vb += [j] * int(ok.sum())
+                pa.append(idx[ok])
+                xyb.append(np.stack([x[ok], y[ok]], 1))
+        c = Correspondences(va, np.concatenate(pa), vb, np.concatenate(xyb), rng.uniform(0.5, 1.0, len(va)))
     layout = None
     if texture:
         n = tex_size
@@ -91,12 +93,20 @@ def make_problem(sizes=((24, 32),) * 3, channels=3, texture=True, corr=True, wei
         pos[0, 0] = np.nan  # one texel outside the islands
         seams = np.stack([np.arange(n) * n, np.arange(n) * n + n - 1], 1)
         layout = TextureLayout(pos, seams)
-    return Problem(images, masks, normals, correspondences=c, uv=uvs if texture else None,
-                   texture=layout, view_weight=vws if weights else None,
-                   names=names or [f"cam{k}" for k in range(len(sizes))])
+    return Problem(
+        images,
+        masks,
+        normals,
+        correspondences=c,
+        uv=uvs if texture else None,
+        texture=layout,
+        view_weight=vws if weights else None,
+        names=names or [f"cam{k}" for k in range(len(sizes))],
+    )
 
 
 # ---------------------------------------------------------------- bundle
+
 
 def _assert_same(p, q):
     assert q.names == p.names
@@ -127,8 +137,18 @@ def test_round_trip_with_everything_and_different_view_sizes(tmp_path):
     with np.load(path, allow_pickle=False) as z:  # the documented keys
         per_view = {f"{k}_{i}" for k in ("image", "mask", "normal", "uv", "view_weight") for i in range(3)}
         assert set(z.files) == per_view | {
-            "format", "version", "n_views", "names", "corr_view_a", "corr_pixel_a", "corr_view_b",
-            "corr_xy_b", "corr_weight", "texel_pos", "seam_pairs"}
+            "format",
+            "version",
+            "n_views",
+            "names",
+            "corr_view_a",
+            "corr_pixel_a",
+            "corr_view_b",
+            "corr_xy_b",
+            "corr_weight",
+            "texel_pos",
+            "seam_pairs",
+        }
         assert int(z["n_views"]) == 3 and z["mask_0"].dtype == bool
 
 
@@ -145,12 +165,23 @@ def test_round_trip_minimal_grey(tmp_path):
 
 def test_bundle_written_without_this_package(tmp_path):
     # the docstring's minimal example, with plain Python lists and default dtypes
-    n = np.zeros((2, 3, 3)); n[..., 2] = 1
+    n = np.zeros((2, 3, 3))
+    n[..., 2] = 1
     path = tmp_path / "ext.npz"
-    np.savez_compressed(path, format="delight-problem-bundle", version=1, n_views=1,
-                        names=["photo"], image_0=np.full((2, 3, 3), 0.5), mask_0=np.ones((2, 3), int),
-                        normal_0=n, corr_view_a=[0], corr_pixel_a=[1], corr_view_b=[0],
-                        corr_xy_b=[[0.0, 1.0]])
+    np.savez_compressed(
+        path,
+        format="delight-problem-bundle",
+        version=1,
+        n_views=1,
+        names=["photo"],
+        image_0=np.full((2, 3, 3), 0.5),
+        mask_0=np.ones((2, 3), int),
+        normal_0=n,
+        corr_view_a=[0],
+        corr_pixel_a=[1],
+        corr_view_b=[0],
+        corr_xy_b=[[0.0, 1.0]],
+    )
     q = load_bundle(path)
     assert q.names == ["photo"] and q.images[0].dtype == np.float32 and q.masks[0].all()
     np.testing.assert_array_equal(q.correspondences.weight, [1.0])
@@ -163,8 +194,9 @@ def _rewrite(src, dst, drop=(), **replace):
     np.savez(dst, **arrays)
 
 
-@pytest.mark.parametrize("key", ["format", "n_views", "names", "mask_1", "normal_0", "image_2",
-                                 "corr_pixel_a", "uv_1", "view_weight_0"])
+@pytest.mark.parametrize(
+    "key", ["format", "n_views", "names", "mask_1", "normal_0", "image_2", "corr_pixel_a", "uv_1", "view_weight_0"]
+)
 def test_missing_key_is_named(tmp_path, key):
     src, dst = tmp_path / "full.npz", tmp_path / "broken.npz"
     save_bundle(src, make_problem())
@@ -193,8 +225,7 @@ def test_bad_bundles_give_clear_errors(tmp_path):
         "other.npz": ({"format": np.array("something else")}, "format is 'something else'"),
         # the Problem's own validation, with the file named
         "bad_normals.npz": ({"normal_1": np.ones((8, 10, 3), np.float32)}, "view 1 .*unit length"),
-        "view_count.npz": ({"n_views": np.array(3), "names": np.array(["a", "b", "c"])},
-                           "missing key 'image_2'"),
+        "view_count.npz": ({"n_views": np.array(3), "names": np.array(["a", "b", "c"])}, "missing key 'image_2'"),
         "few_names.npz": ({"names": np.array(["a"])}, "'names' must be 2 strings"),
     }
     for name, (replace, message) in cases.items():
@@ -217,12 +248,39 @@ def test_save_rejects_non_problems_and_keeps_existing_file(tmp_path):
 
 # ---------------------------------------------------------------- file names
 
+
 def test_safe_file_names():
-    names = ["../../x", "a/b", "a\\b", "", "..", ".hidden", "CON", "con.jpg", "IMG 01.JPG", "img_01.jpg",
-             "Img_01.JPG", "ok-1.x", "café"]
+    names = [
+        "../../x",
+        "a/b",
+        "a\\b",
+        "",
+        "..",
+        ".hidden",
+        "CON",
+        "con.jpg",
+        "IMG 01.JPG",
+        "img_01.jpg",
+        "Img_01.JPG",
+        "ok-1.x",
+        "café",
+    ]
     out = unique_names(names)
-    assert out == ["_._.._x", "a_b", "a_b_2", "unnamed", "_.", "_hidden", "_CON", "_con.jpg",
-                   "IMG_01.JPG", "img_01.jpg_2", "Img_01.JPG_3", "ok-1.x", "caf_"]
+    assert out == [
+        "_._.._x",
+        "a_b",
+        "a_b_2",
+        "unnamed",
+        "_.",
+        "_hidden",
+        "_CON",
+        "_con.jpg",
+        "IMG_01.JPG",
+        "img_01.jpg_2",
+        "Img_01.JPG_3",
+        "ok-1.x",
+        "caf_",
+    ]
     assert len({n.lower() for n in out}) == len(out)
     assert all(os.path.basename(n) == n and not n.startswith(".") for n in out)
     assert unique_names(["x" * 300])[0] == "x" * 100
@@ -230,20 +288,28 @@ def test_safe_file_names():
 
 # ---------------------------------------------------------------- outputs
 
+
 def _fake_result(problem, texture=True, seed=1):
     """A Result as the solver contract describes it (no solver involved)."""
     rng = np.random.default_rng(seed)
     c = problem.channels
-    views = [np.where(m[..., None], rng.uniform(0, 1, m.shape + (c,)), np.nan).astype(np.float32)
-             for m in problem.masks]
+    views = [
+        np.where(m[..., None], rng.uniform(0, 1, m.shape + (c,)), np.nan).astype(np.float32) for m in problem.masks
+    ]
     tex = seen = None
     if texture:
         n = problem.texture.size
         seen = rng.uniform(size=(n, n)) > 0.3
         tex = np.where(seen[..., None], rng.uniform(0, 1, (n, n, c)), np.nan).astype(np.float32)
-    return Result(sigma=rng.standard_normal((problem.n_views, c, 9)), views=views,
-                  energy=[10.0, 5.0, 4.5], iterations=2, texture=tex, seen=seen,
-                  info={"scale": np.float64(0.5), "hist": np.arange(3)})
+    return Result(
+        sigma=rng.standard_normal((problem.n_views, c, 9)),
+        views=views,
+        energy=[10.0, 5.0, 4.5],
+        iterations=2,
+        texture=tex,
+        seen=seen,
+        info={"scale": np.float64(0.5), "hist": np.arange(3)},
+    )
 
 
 def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
@@ -252,11 +318,17 @@ def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
     out = tmp_path / "run" / "out"
     files = write_outputs(out, p, result, SolverParams(lam=2.0), elapsed=1.25, bundle="b.npz")
 
-    written = sorted(os.path.relpath(os.path.join(d, f), tmp_path)
-                     for d, _, fs in os.walk(tmp_path) for f in fs)
-    assert written == sorted(["run/out/albedo.exr", "run/out/lighting.json", "run/out/report.json",
-                              "run/out/views/_._.._x.exr", "run/out/views/a_b.exr",
-                              "run/out/views/A_B_2.exr"])
+    written = sorted(os.path.relpath(os.path.join(d, f), tmp_path) for d, _, fs in os.walk(tmp_path) for f in fs)
+    assert written == sorted(
+        [
+            "run/out/albedo.exr",
+            "run/out/lighting.json",
+            "run/out/report.json",
+            "run/out/views/_._.._x.exr",
+            "run/out/views/a_b.exr",
+            "run/out/views/A_B_2.exr",
+        ]
+    )
     assert files["views"] == ["views/_._.._x.exr", "views/a_b.exr", "views/A_B_2.exr"]
 
     for i, rel in enumerate(files["views"]):
@@ -310,10 +382,12 @@ def test_write_outputs_rejects_a_result_that_does_not_fit(tmp_path):
 
 # ---------------------------------------------------------------- command line
 
+
 def _run(*args):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "core", *map(str, args)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "core", *map(str, args)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
 
 
 def test_help():
@@ -331,9 +405,11 @@ def test_bad_input_exits_with_one_line(tmp_path):
     text.write_text("not a bundle")
     no_texture = tmp_path / "image_only.npz"
     save_bundle(no_texture, make_problem(texture=False, sizes=((8, 10),)))
-    cases = [((tmp_path / "missing.npz",), "missing.npz"),
-             ((text,), "scene.npz: not an .npz archive"),
-             ((no_texture, "--domain", "texture"), "needs a texture layout")]
+    cases = [
+        ((tmp_path / "missing.npz",), "missing.npz"),
+        ((text,), "scene.npz: not an .npz archive"),
+        ((no_texture, "--domain", "texture"), "needs a texture layout"),
+    ]
     for args, message in cases:
         r = _run("solve", *args, "--out", out)
         assert r.returncode == 1, r.stderr
@@ -345,7 +421,7 @@ def test_bad_input_exits_with_one_line(tmp_path):
     assert r.returncode == 1 and "not a folder" in r.stderr
     r = _run("solve", no_texture, "--out", out, "--lambda", "-1")
     assert r.returncode == 1 and r.stderr == "error: lambda must be a number of at least 0 or auto, got -1\n"
-    r = _run("solve", no_texture, "--out", out, "--lambda", "soft")   # not a number: a usage error
+    r = _run("solve", no_texture, "--out", out, "--lambda", "soft")  # not a number: a usage error
     assert r.returncode == 2 and "--lambda" in r.stderr and "got 'soft'" in r.stderr
 
 
@@ -355,8 +431,7 @@ def test_solve_end_to_end(tmp_path, capsys, domain):
     bundle = tmp_path / "problem.npz"
     save_bundle(bundle, p)
     out = tmp_path / "out"
-    status = main(["solve", str(bundle), "--out", str(out), "--domain", domain,
-                   "--max-iter", "3", "--lambda", "1"])
+    status = main(["solve", str(bundle), "--out", str(out), "--domain", domain, "--max-iter", "3", "--lambda", "1"])
     assert status == 0
     assert "delight:" in capsys.readouterr().err  # progress went to stderr
 
@@ -386,8 +461,22 @@ def test_solve_passes_the_solver_options(tmp_path):
     bundle = tmp_path / "problem.npz"
     save_bundle(bundle, make_problem())
     out = tmp_path / "out"
-    assert main(["solve", str(bundle), "--out", str(out), "--max-iter", "2", "--data-model", "interpolate",
-                 "--gauss-newton"]) == 0
+    assert (
+        main(
+            [
+                "solve",
+                str(bundle),
+                "--out",
+                str(out),
+                "--max-iter",
+                "2",
+                "--data-model",
+                "interpolate",
+                "--gauss-newton",
+            ]
+        )
+        == 0
+    )
     params = json.loads((out / "report.json").read_text())["params"]
     assert params["data_model"] == "interpolate" and params["gauss_newton"] is True
     rgba, _ = read_exr(out / "albedo.exr")

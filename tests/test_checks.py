@@ -1,4 +1,5 @@
 """core.checks: photos that cannot be images of light on the mesh are refused before the solve."""
+
 import numpy as np
 import pytest
 
@@ -38,14 +39,14 @@ def test_a_black_photo_is_refused():
 
 def test_a_few_negative_pixels_are_left_out_with_a_warning():
     names, photos, masks = views()
-    k = int(NEGATIVE_MAX_SHARE * masks[0].sum())   # at the limit: still accepted
+    k = int(NEGATIVE_MAX_SHARE * masks[0].sum())  # at the limit: still accepted
     rows, cols = np.nonzero(masks[0])
     photos[0][rows[:k], cols[:k], 1] = -0.2
-    photos[0][0, 0] = -1.0                          # off the mesh: not counted
+    photos[0][0, 0] = -1.0  # off the mesh: not counted
     warnings = check_photos(names, photos, masks)
     assert warnings == [f"camera 'cam0': {k} negative pixels on the mesh were left out"]
     assert not masks[0][rows[:k], cols[:k]].any() and masks[0][rows[k:], cols[k:]].all()
-    photos[1][rows[:k + 1], cols[:k + 1], 0] = -0.2   # one more than the limit
+    photos[1][rows[: k + 1], cols[: k + 1], 0] = -0.2  # one more than the limit
     with pytest.raises(DelightError, match="'cam1'"):
         check_photos(names, photos, masks)
 
@@ -70,14 +71,14 @@ def test_a_clean_uv_layout_gives_no_warning():
 def test_overlapping_zero_area_and_stretched_faces_are_measured():
     uv, pos = grid_mesh()
     folded = uv.copy()
-    folded[:32] = folded[32:64]                        # a quarter of the faces on top of another quarter
+    folded[:32] = folded[32:64]  # a quarter of the faces on top of another quarter
     (w,) = check_uv_layout(folded, pos, 64)
     assert "overlapping UV islands" in w and float(w.split("UV layout: ")[1].split(" %")[0]) > 20
     flat = uv.copy()
-    flat[:10] = flat[:10, :1]                          # 10 faces collapsed to a point
+    flat[:10] = flat[:10, :1]  # 10 faces collapsed to a point
     (w,) = check_uv_layout(flat, pos, 64)
     assert w.startswith("UV layout: 10 faces (7.8 % of the surface) have no area")
     stretched = uv.copy()
-    stretched[5, 1:] = ((0.95, 0.05), (0.95, 0.95))     # one face spans the whole map
+    stretched[5, 1:] = ((0.95, 0.05), (0.95, 0.95))  # one face spans the whole map
     warnings = check_uv_layout(stretched, pos, 64)
     assert any("1 faces (0.8 % of the surface) are stretched" in w for w in warnings)

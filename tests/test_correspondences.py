@@ -1,4 +1,5 @@
 """Correspondences between views of analytic spheres (ray casting in NumPy)."""
+
 import numpy as np
 import pytest
 
@@ -25,7 +26,7 @@ def look_at(eye, target=(0.0, 0.0, 0.0), w=96, h=80, f=150.0):
 def ray_sphere(o, d, centre, radius):
     oc = o - centre
     b = d @ oc
-    disc = b * b - (oc @ oc - radius ** 2)
+    disc = b * b - (oc @ oc - radius**2)
     t = -b - np.sqrt(np.maximum(disc, 0))
     return np.where((disc > 0) & (t > 0), t, np.inf)
 
@@ -49,8 +50,7 @@ def render(cam, spheres):
 
 @pytest.fixture(scope="module")
 def scene():
-    cams = [look_at((0.0, -5.0, 1.0)), look_at((3.5, -3.5, 0.5)), look_at(EYE2, w=88, h=88),
-            look_at((0.0, 5.0, 0.5))]
+    cams = [look_at((0.0, -5.0, 1.0)), look_at((3.5, -3.5, 0.5)), look_at(EYE2, w=88, h=88), look_at((0.0, 5.0, 0.5))]
     spheres = [BIG, SMALL]
     baked = [render(c, spheres) for c in cams]
     return cams, spheres, baked
@@ -61,8 +61,9 @@ def test_pairs_see_the_same_point_and_never_an_occluded_one(scene):
     pos, masks, nrm, which = (list(x) for x in zip(*baked))
     c = find_correspondences(cams, pos, masks, nrm, neighbours=3)
     assert len(c) > 3000
-    problem = Problem(images=[np.ones(m.shape + (3,)) for m in masks], masks=masks, normals=nrm,
-                      correspondences=c)  # valid for the solver (indices, ranges, masks)
+    problem = Problem(
+        images=[np.ones(m.shape + (3,)) for m in masks], masks=masks, normals=nrm, correspondences=c
+    )  # valid for the solver (indices, ranges, masks)
     assert problem.correspondences is c
     for a in range(4):
         for b in range(4):

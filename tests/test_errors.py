@@ -1,4 +1,5 @@
 """Every failure is one line (core.errors), and ``python -m core solve`` prints no traceback without --debug."""
+
 import errno
 import io
 
@@ -14,23 +15,25 @@ from core.io.bundle import save_bundle
 def test_failure_messages():
     assert failure_message(DelightError("no mesh")) == "no mesh"
     assert failure_message(ValueError("bad array")) == "bad array"
-    assert failure_message(PermissionError(errno.EACCES, "Permission denied", "/x/out")) == \
-        "/x/out: permission denied"
+    assert failure_message(PermissionError(errno.EACCES, "Permission denied", "/x/out")) == "/x/out: permission denied"
     assert failure_message(OSError(errno.ENOSPC, "No space left on device")) == "the disk is full"
     assert failure_message(Cancelled("cancelled")) == "interrupted; nothing was written"
-    assert failure_message(Cancelled("interrupted after the new outputs were written to /o", written="/o")) == \
-        "interrupted after the new outputs were written to /o"
+    assert (
+        failure_message(Cancelled("interrupted after the new outputs were written to /o", written="/o"))
+        == "interrupted after the new outputs were written to /o"
+    )
 
 
 def test_out_of_memory_names_the_settings_to_lower():
     exc = MemoryError()
-    assert failure_message(exc, "cli") == \
-        "out of memory: lower the working resolution (--working-res) or the texture size (--texture-size)"
-    assert failure_message(exc, "panel") == \
-        "out of memory: lower the Working resolution (MP) or the Texture size (px)"
+    assert (
+        failure_message(exc, "cli")
+        == "out of memory: lower the working resolution (--working-res) or the texture size (--texture-size)"
+    )
+    assert failure_message(exc, "panel") == "out of memory: lower the Working resolution (MP) or the Texture size (px)"
     assert "smaller bundle" in failure_message(exc, "core")
-    with pytest.raises(MemoryError) as info:   # numpy's own kind says the same
-        np.empty(2 ** 62, dtype=np.uint8)
+    with pytest.raises(MemoryError) as info:  # numpy's own kind says the same
+        np.empty(2**62, dtype=np.uint8)
     assert failure_message(info.value, "cli") == failure_message(exc, "cli")
 
 
@@ -45,7 +48,7 @@ def test_an_unexpected_error_is_one_line_that_says_where_the_traceback_is():
 def _raise(exc):
     try:
         raise exc
-    except BaseException as caught:   # with a traceback, as a real failure has
+    except BaseException as caught:  # with a traceback, as a real failure has
         return caught
 
 
@@ -70,14 +73,18 @@ def bundle(tmp_path):
     return path
 
 
-@pytest.mark.parametrize("exc,line", [
-    (MemoryError(), "error: out of memory: solve a smaller bundle (fewer or smaller photos, a smaller texture)"),
-    (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
-    (OSError(errno.ENOSPC, "No space left on device"), "error: the disk is full"),
-])
+@pytest.mark.parametrize(
+    "exc,line",
+    [
+        (MemoryError(), "error: out of memory: solve a smaller bundle (fewer or smaller photos, a smaller texture)"),
+        (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
+        (OSError(errno.ENOSPC, "No space left on device"), "error: the disk is full"),
+    ],
+)
 def test_core_cli_failures_are_one_line(tmp_path, bundle, capsys, monkeypatch, exc, line):
-    def fail(*args, **kwargs):   # the solver fails as it would on a machine that lacks the memory
+    def fail(*args, **kwargs):  # the solver fails as it would on a machine that lacks the memory
         raise exc
+
     monkeypatch.setattr(core.cli, "solve", fail)
     argv = ["solve", str(bundle), "--out", str(tmp_path / "out"), "--max-iter", "2"]
     assert core.cli.main(argv) == 1

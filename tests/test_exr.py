@@ -54,7 +54,7 @@ def test_half_round_trip_within_half_precision(tmp_path, c):
     assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION
     b, _ = read_exr(p)
     assert b.dtype == np.float32
-    np.testing.assert_allclose(b, a, rtol=2 ** -11, atol=2 ** -24)
+    np.testing.assert_allclose(b, a, rtol=2**-11, atol=2**-24)
     assert not np.array_equal(b, a)  # it really was stored as half
 
 
@@ -122,10 +122,12 @@ def test_multi_part_file(tmp_path):
     parts = [
         OpenEXR.Part({"compression": OpenEXR.ZIP_COMPRESSION}, {"Layer.Depth.Z": depth}, "Layer.Depth"),
         # the binding ignores numpy strides: hand it contiguous planes
-        OpenEXR.Part({}, {f"Layer.Normal.{k}": np.ascontiguousarray(nrm[:, :, i])
-                          for i, k in enumerate("XYZ")}, "Layer.Normal"),
-        OpenEXR.Part({}, {f"Layer.Combined.{k}": rgb[:, :, i].astype(np.float16)
-                          for i, k in enumerate("RGB")}, "Layer.Combined"),
+        OpenEXR.Part(
+            {}, {f"Layer.Normal.{k}": np.ascontiguousarray(nrm[:, :, i]) for i, k in enumerate("XYZ")}, "Layer.Normal"
+        ),
+        OpenEXR.Part(
+            {}, {f"Layer.Combined.{k}": rgb[:, :, i].astype(np.float16) for i, k in enumerate("RGB")}, "Layer.Combined"
+        ),
     ]
     p = tmp_path / "multi.exr"
     OpenEXR.File(parts).write(str(p))
@@ -142,8 +144,11 @@ def test_multi_part_file(tmp_path):
     assert ch == ["Z"]
     np.testing.assert_array_equal(a[:, :, 0], depth)
 
-    assert exr_parts(p) == [("Layer.Depth", ["Z"]), ("Layer.Normal", ["X", "Y", "Z"]),
-                            ("Layer.Combined", ["R", "G", "B"])]
+    assert exr_parts(p) == [
+        ("Layer.Depth", ["Z"]),
+        ("Layer.Normal", ["X", "Y", "Z"]),
+        ("Layer.Combined", ["R", "G", "B"]),
+    ]
     with pytest.raises(ValueError, match="no part named 'Nope'.*Layer.Normal"):
         read_exr(p, part="Nope")
     with pytest.raises(ValueError, match="part index 3 out of range"):
@@ -203,11 +208,11 @@ def test_blender_multilayer_exr_is_read(tmp_path):
     assert ch == ["R", "G", "B", "A"]
     assert rgba.shape == (6, 8, 4) and rgba.dtype == np.float32
     alpha = rgba[:, :, 3]
-    assert alpha[:2, 3:5].min() > 0.99   # the sphere, at the top
-    assert alpha[4:].max() == 0.0        # transparent background, at the bottom
+    assert alpha[:2, 3:5].min() > 0.99  # the sphere, at the top
+    assert alpha[4:].max() == 0.0  # transparent background, at the bottom
 
     nrm, ch = read_exr(path, part="ViewLayer.Normal")
     assert ch == ["X", "Y", "Z"]
     hit = alpha > 0.99
     np.testing.assert_allclose(np.linalg.norm(nrm[hit], axis=1), 1.0, atol=1e-3)
-    assert nrm[0, 3:5, 1].min() > 0.3   # top row: world normals point up (+Y)
+    assert nrm[0, 3:5, 1].min() > 0.3  # top row: world normals point up (+Y)

@@ -1,4 +1,5 @@
 """Tests for core.texture.fuse: multi-view fusion into a texture, and hole filling."""
+
 import numpy as np
 import pytest
 
@@ -6,8 +7,8 @@ import core.texture.fill as fill
 import core.texture.fuse as fusion
 from core.texture import fill_unseen, fuse_views
 
-
 # ---------------------------------------------------------------- helpers
+
 
 def albedo(uv):
     """A smooth RGB texture as a function of UV."""
@@ -40,19 +41,20 @@ def centres_uv(n):
 
 # ---------------------------------------------------------------- fuse_views
 
+
 def test_fusion_recovers_a_known_texture():
     n = 32
     views = three_views()
     maps = [albedo(uv) for uv, _ in views]
     out = fuse_views(maps, [m for _, m in views], [uv for uv, _ in views], n)
     assert out.shape == (n, n, 4) and out.dtype == np.float32
-    assert np.all(out[..., 3] == 1)                     # 9 pixels per texel: all seen
+    assert np.all(out[..., 3] == 1)  # 9 pixels per texel: all seen
     # Each texel is a mean of pixels within half a texel of its centre.
     np.testing.assert_allclose(out[..., :3], albedo(centres_uv(n)), atol=0.4 / n)
 
 
 def test_alpha_is_one_exactly_on_seen_texels():
-    n = 64                                             # fewer pixels than texels: holes
+    n = 64  # fewer pixels than texels: holes
     uv, mask = flat_view(50, 0.3, 0.7, (0.45, 0.5))
     out = fuse_views([albedo(uv)], [mask], [uv], n, inside=np.ones((n, n), bool))
     seen = np.zeros((n, n), bool)
@@ -70,8 +72,7 @@ def test_per_view_weighted_mean_within_a_texel():
     uv = np.array([[[0.05, 0.95], [0.2, 0.95]], [[0.05, 0.8], [0.2, 0.8]]])
     vals = np.array([[1.0, 2.0], [3.0, 4.0]])
     w = np.array([[1.0, 1.0], [1.0, 5.0]])
-    out = fuse_views([vals], [np.ones((2, 2), bool)], [uv], n, view_weight=[w],
-                     inside=np.ones((n, n), bool))
+    out = fuse_views([vals], [np.ones((2, 2), bool)], [uv], n, view_weight=[w], inside=np.ones((n, n), bool))
     expect = (1 + 2 + 3 + 20) / 8
     assert out[0, 0, 1] == 1 and out[..., 1].sum() == 1
     # The single seen texel fills the whole (one-island) texture.
@@ -88,7 +89,7 @@ def test_weighted_median_across_views():
     n = 8
     maps, masks, uvs = constant_views([1.0, 2.0, 10.0])
     out = fuse_views(maps, masks, uvs, n)
-    np.testing.assert_allclose(out[..., 0], 2.0)            # median, not the mean 4.33
+    np.testing.assert_allclose(out[..., 0], 2.0)  # median, not the mean 4.33
     # Two equal views: the median is their mean.
     out = fuse_views(maps[:2], masks[:2], uvs[:2], n)
     np.testing.assert_allclose(out[..., 0], 1.5)
@@ -109,8 +110,8 @@ def test_highlight_in_one_view_is_rejected():
     maps = []
     for i, (uv, _) in enumerate(views):
         m = albedo(uv)
-        if i == 1:                                      # a white specular blob
-            m += 2.0 * (np.sum((uv - 0.5) ** 2, axis=-1) < 0.2 ** 2)[..., None]
+        if i == 1:  # a white specular blob
+            m += 2.0 * (np.sum((uv - 0.5) ** 2, axis=-1) < 0.2**2)[..., None]
         maps.append(m)
     out = fuse_views(maps, [m for _, m in views], [uv for uv, _ in views], n)
     np.testing.assert_allclose(out[..., :3], albedo(centres_uv(n)), atol=0.4 / n)
@@ -157,6 +158,7 @@ def test_fuse_views_bad_input():
 
 # ---------------------------------------------------------------- fill_unseen
 
+
 def ramp_case(n=48):
     r, c = np.mgrid[0:n, 0:n].astype(float)
     tex = np.stack([0.02 * r + 0.01 * c + 0.1, 1 - 0.015 * c], -1)
@@ -165,7 +167,7 @@ def ramp_case(n=48):
     return tex, inside & ~hole, inside, hole
 
 
-@pytest.mark.parametrize("direct_max", [10 ** 9, 20])
+@pytest.mark.parametrize("direct_max", [10**9, 20])
 def test_fill_recovers_linear_ramp_in_hole(monkeypatch, direct_max):
     # direct_max=20 forces the coarse-to-fine (multigrid + CG) path.
     monkeypatch.setattr(fill, "_DIRECT_MAX", direct_max)
@@ -184,10 +186,10 @@ def test_fill_stays_within_neighbour_range_and_islands_do_not_leak(monkeypatch):
     rng = np.random.default_rng(3)
     r, c = np.mgrid[0:n, 0:n]
     left = (c >= 2) & (c < 30) & (r >= 2) & (r < n - 2)
-    right = (c >= 32) & (c < n - 2) & (r >= 2) & (r < n - 2)      # 2-texel gutter
+    right = (c >= 32) & (c < n - 2) & (r >= 2) & (r < n - 2)  # 2-texel gutter
     tex = np.where(left, 1.0 + 0.2 * rng.random((n, n)), 5.0 + 0.2 * rng.random((n, n)))
     seen = (left | right) & (rng.random((n, n)) > 0.4)
-    seen[10:40, 5:25] = False                                       # big hole on the left
+    seen[10:40, 5:25] = False  # big hole on the left
     out = fill_unseen(tex, seen, left | right, margin=0)
     for isl in (left, right):
         lo, hi = tex[isl & seen].min(), tex[isl & seen].max()
@@ -199,7 +201,7 @@ def test_fill_margin_and_unseen_islands():
     n = 32
     r, c = np.mgrid[0:n, 0:n]
     a = (r >= 10) & (r < 20) & (c >= 10) & (c < 20)
-    b = (r >= 2) & (r < 5) & (c >= 26) & (c < 30)                   # never seen
+    b = (r >= 2) & (r < 5) & (c >= 26) & (c < 30)  # never seen
     tex = np.full((n, n, 3), np.nan)
     tex[a] = [2.0, 4.0, 6.0]
     seen = a & ~((r == 15) & (c == 15))
@@ -208,6 +210,7 @@ def test_fill_margin_and_unseen_islands():
     np.testing.assert_allclose(out[b], np.broadcast_to([2, 4, 6], (b.sum(), 3)))
     # Chebyshev distance to the islands: within the margin filled, beyond it 0.
     from scipy.ndimage import distance_transform_cdt
+
     dist = distance_transform_cdt(~(a | b), metric="chessboard")
     ring = (dist > 0) & (dist <= 3)
     np.testing.assert_allclose(out[ring], np.broadcast_to([2, 4, 6], (ring.sum(), 3)), rtol=1e-6)
@@ -236,8 +239,8 @@ def test_weighted_median_paths_match_reference(monkeypatch, k):
     # the sorting path must give the textbook weighted median.
     rng = np.random.default_rng(k)
     g = 300
-    vals = rng.integers(0, 4, (2, g * k)).astype(float)          # many ties
-    w = rng.integers(0, 3, g * k).astype(float)                   # zero weights too
+    vals = rng.integers(0, 4, (2, g * k)).astype(float)  # many ties
+    w = rng.integers(0, 3, g * k).astype(float)  # zero weights too
     count = np.full(g, k)
     start = np.arange(g) * k
 
@@ -249,7 +252,7 @@ def test_weighted_median_paths_match_reference(monkeypatch, k):
         half = cw[-1] / 2
         return 0.5 * (v[np.argmax(cw >= half)] + v[np.argmax(cw > half)])
 
-    expect = np.array([[reference(vals[ch, s:s + k], w[s:s + k]) for ch in range(2)] for s in start])
+    expect = np.array([[reference(vals[ch, s : s + k], w[s : s + k]) for ch in range(2)] for s in start])
     for pairwise_max in (0, 100):
         monkeypatch.setattr(fusion, "_PAIRWISE_MAX_K", pairwise_max)
         np.testing.assert_array_equal(fusion._weighted_median(count, start, vals, w), expect)

@@ -1,4 +1,5 @@
 """The core is pure NumPy/SciPy: importing every one of its modules never imports bpy."""
+
 import os
 import subprocess
 import sys
@@ -19,8 +20,10 @@ def core_modules():
 def test_core_never_imports_bpy():
     mods = core_modules()
     assert len(mods) > 20 and "core.solve.solver" in mods
-    code = ("import importlib, sys\n"
-            f"for m in {mods!r}: importlib.import_module(m)\n"
-            "print(sorted(m for m in sys.modules if m == 'bpy' or m.startswith(('bpy.', 'mathutils', 'bmesh'))))")
+    code = (
+        "import importlib, sys\n"
+        f"for m in {mods!r}: importlib.import_module(m)\n"
+        "print(sorted(m for m in sys.modules if m == 'bpy' or m.startswith(('bpy.', 'mathutils', 'bmesh'))))"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout

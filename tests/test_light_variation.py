@@ -1,9 +1,16 @@
 import numpy as np
 import pytest
 
-from core.solve.lambda_choice import (LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD, auto_lambda, choose_lambda,
-                                  describe_lambda, lighting_variation)
 from core.evaluate.synthetic import sphere_scene
+from core.solve.lambda_choice import (
+    LAMBDA_FIXED,
+    LAMBDA_VARYING,
+    VARYING_THRESHOLD,
+    auto_lambda,
+    choose_lambda,
+    describe_lambda,
+    lighting_variation,
+)
 
 
 def _variation(scene, images=None):
@@ -24,9 +31,8 @@ def test_one_lighting_reads_as_fixed_even_with_an_exposure_per_view(fixed):
 
 
 def test_a_light_per_shot_reads_as_varying():
-    scene = sphere_scene(varying_light=True, n_views=13, height=120, width=160, texture_size=64, seed=1,
-                         noise=0.005)
-    assert _variation(scene) > 1.2 * VARYING_THRESHOLD   # measured 0.31
+    scene = sphere_scene(varying_light=True, n_views=13, height=120, width=160, texture_size=64, seed=1, noise=0.005)
+    assert _variation(scene) > 1.2 * VARYING_THRESHOLD  # measured 0.31
 
 
 def test_noise_that_the_normal_does_not_explain_stays_out(fixed):

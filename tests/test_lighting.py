@@ -12,12 +12,19 @@ from core.solve.solver import SolverParams, solve
 @pytest.fixture(scope="module")
 def exposed():
     """A fixed light, and a different exposure and white balance per photo (3 gains per view)."""
-    scene = sphere_scene(varying_light=False, n_views=6, height=60, width=80, texture_size=32, seed=5,
-                         noise=0.002, textured=True)
+    scene = sphere_scene(
+        varying_light=False, n_views=6, height=60, width=80, texture_size=32, seed=5, noise=0.002, textured=True
+    )
     gains = np.exp(0.3 * np.random.default_rng(1).standard_normal((6, 3)))
     p = scene.problem
-    problem = Problem([im * g for im, g in zip(p.images, gains)], p.masks, p.normals, uv=p.uv, texture=p.texture,
-                      view_weight=p.view_weight)
+    problem = Problem(
+        [im * g for im, g in zip(p.images, gains)],
+        p.masks,
+        p.normals,
+        uv=p.uv,
+        texture=p.texture,
+        view_weight=p.view_weight,
+    )
     return scene, problem, gains
 
 
@@ -33,9 +40,9 @@ def test_shared_step_descends_and_finds_the_gains():
     g_true[0] = 1
     X = [rng.standard_normal((200, 9)) for _ in range(m)]
     Ms = np.stack([x.T @ x for x in X])
-    bs = np.stack([x.T @ (x @ (g * s_true)) for x, g in zip(X, g_true)])   # noiseless: b = M g s
+    bs = np.stack([x.T @ (x @ (g * s_true)) for x, g in zip(X, g_true)])  # noiseless: b = M g s
     start = np.tile(s_true * 1.0, (m, 1))
-    start[:, 0] += 0.5                       # wrong lighting, gains 1
+    start[:, 0] += 0.5  # wrong lighting, gains 1
     before = _objective(Ms, bs, start)
     one = shared_lighting_step(Ms, bs, start, rounds=1, pin_constant=False)
     assert _objective(Ms, bs, one) <= before
@@ -94,8 +101,9 @@ def test_known_lighting_recovers_the_albedo(exposed):
 
 def test_two_stages_report_both(exposed):
     _, problem, _ = exposed
-    r = solve(problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5,
-                                    light_size=16))
+    r = solve(
+        problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5, light_size=16)
+    )
     assert r.info["albedo_lam"] == 0.3
     assert r.info["lighting_stage"]["lighting"] == "shared"
     assert r.info["lighting_stage"]["solved_size"] == 16
@@ -117,11 +125,11 @@ def test_bad_lighting_params():
 def test_a_25_coefficient_transfer_solves(exposed, lighting):
     from core.geometry.transfer import open_factor
     from core.solve.sh import sh_basis
+
     _, problem, _ = exposed
     p = problem
     transfer = [sh_basis(n, order=4) * open_factor(25).astype(np.float32) for n in p.normals]
-    q = Problem(p.images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight,
-                transfer=transfer)
+    q = Problem(p.images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight, transfer=transfer)
     r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=6, min_iter=6))
     assert r.sigma.shape == (6, 3, 25)
     assert np.all(np.diff(r.energy) <= 0)

@@ -3,16 +3,16 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from core.evaluate.synthetic import sphere_scene
 from core.geometry.correspondences import find_correspondences
-from core.solve.huber import mm_weight
 from core.solve import multigrid
-from core.solve.multigrid import Hierarchy, block_grid, surface_grid
+from core.solve.cg import pcg
 from core.solve.discretization import image_domain
+from core.solve.huber import mm_weight
+from core.solve.multigrid import Hierarchy, block_grid, surface_grid
 from core.solve.problem import Problem
 from core.solve.sh import DIFFUSE
-from core.solve.cg import pcg
 from core.solve.solver import SolverParams, solve
-from core.evaluate.synthetic import sphere_scene
 
 
 @pytest.fixture(scope="module")
@@ -22,11 +22,19 @@ def stiff():
     At the true (piecewise-constant) albedo the TV and correspondence weights are at their stiffest,
     lambda / delta and mu / delta, as they become once the solver has flattened rho.
     """
-    sc = sphere_scene(n_views=6, height=90, width=120, texture_size=64, n_cells=20, varying_light=False,
-                      noise=0.005, seed=5, distance=2.2)
+    sc = sphere_scene(
+        n_views=6,
+        height=90,
+        width=120,
+        texture_size=64,
+        n_cells=20,
+        varying_light=False,
+        noise=0.005,
+        seed=5,
+        distance=2.2,
+    )
     p = sc.problem
-    corr = find_correspondences(sc.cameras, sc.positions, p.masks, p.normals, max_pairs=60000, neighbours=5,
-                                seed=5)
+    corr = find_correspondences(sc.cameras, sc.positions, p.masks, p.normals, max_pairs=60000, neighbours=5, seed=5)
     problem = Problem(p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture)
     d = image_domain(problem)
     rho = np.concatenate([a[m][:, 0] for a, m in zip(sc.albedo_views, p.masks)]).astype(np.float64)
@@ -103,8 +111,9 @@ def test_surface_blocks_beat_view_blocks(stiff, monkeypatch):
     A32 = A.astype(np.float32).tocsr()
     errs = []
     for grid in (block_grid(problem, d), view_grid):
-        pre = Hierarchy(grid, d.B, d.BT).preconditioner(lambda v: A32 @ v, D.astype(np.float32),
-                                                         w.astype(np.float32), np.float64)
+        pre = Hierarchy(grid, d.B, d.BT).preconditioner(
+            lambda v: A32 @ v, D.astype(np.float32), w.astype(np.float32), np.float64
+        )
         errs.append(_error_after(A, b, x_star, pre, 20))
     # Measured: 0.08 against 0.16.
     assert errs[0] < 0.7 * errs[1], errs

@@ -2,15 +2,18 @@
 
 The bpy side (operator and panel properties, the operator's refusals) is in tests/bpy/test_option_properties.py.
 """
+
 import dataclasses
 import io
 import math
 
 import pytest
 
-from blender_addon.cli import CLI_FIELDS, build_parser as addon_parser, options_from_args
+from blender_addon.cli import CLI_FIELDS, options_from_args
+from blender_addon.cli import build_parser as addon_parser
 from core import pipeline
-from core.cli import build_parser as core_parser, main as core_main
+from core.cli import build_parser as core_parser
+from core.cli import main as core_main
 from core.errors import Cancelled, DelightError, report_failure
 from core.options import OPTIONS, RUN_FIELDS, SOLVER_FIELDS, SPEC, Options, check, requirement
 from core.progress import STAGES, ProgressPrinter, check_cancel, stage_progress
@@ -34,7 +37,7 @@ def test_solver_defaults_come_from_solver_params():
     p = SolverParams()
     for name in ("mu", "max_iter", "delta", "data_model", "gauss_newton"):
         assert OPTIONS[name].default == getattr(p, name), name
-    assert OPTIONS["lam"].default is None and OPTIONS["lam"].ui_default == p.lam   # auto; the UI shows 5
+    assert OPTIONS["lam"].default is None and OPTIONS["lam"].ui_default == p.lam  # auto; the UI shows 5
     assert pipeline.DEFAULTS == p
 
 
@@ -56,7 +59,7 @@ def test_every_setting_has_words_and_a_sane_range():
 def test_options_is_built_from_the_spec():
     assert pipeline.Options is Options
     fields = dataclasses.fields(Options)
-    assert tuple(f.name for f in fields) == RUN_FIELDS + ("solver",)   # solver: expert SolverParams fields
+    assert tuple(f.name for f in fields) == RUN_FIELDS + ("solver",)  # solver: expert SolverParams fields
     assert {f.name: f.default for f in fields[:-1]} == {n: OPTIONS[n].default for n in RUN_FIELDS}
     assert pipeline.METHODS == ("texture", "image", "project")
     Options().validate()
@@ -72,9 +75,20 @@ def test_check_refuses_with_one_wording(name, value, message):
     assert str(info.value) == message
 
 
-@pytest.mark.parametrize("name, value", [("texture_size", 8), ("texture_size", 16384), ("lam", 0.0), ("lam", None),
-                                         ("working_res_mp", 1e-4), ("max_iter", 1), ("delta", 1e-9),
-                                         ("method", "project"), ("object_name", None)])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("texture_size", 8),
+        ("texture_size", 16384),
+        ("lam", 0.0),
+        ("lam", None),
+        ("working_res_mp", 1e-4),
+        ("max_iter", 1),
+        ("delta", 1e-9),
+        ("method", "project"),
+        ("object_name", None),
+    ],
+)
 def test_check_accepts_the_edges(name, value):
     assert check(name, value) is value
 
@@ -105,8 +119,9 @@ def test_the_command_lines_take_their_defaults_choices_and_help_from_the_spec(wh
     for name, action in _parser_actions(parser, names).items():
         o = OPTIONS[name]
         # A setting on by default also has its --no- form.
-        assert action.option_strings == [o.flag] + ([f"--no-{o.flag[2:]}"] if o.kind == "bool" and o.default
-                                                    else []), name
+        assert action.option_strings == [o.flag] + ([f"--no-{o.flag[2:]}"] if o.kind == "bool" and o.default else []), (
+            name
+        )
         assert action.default == o.default, name
         assert action.help.startswith(o.help), name
         if o.kind == "choice":
@@ -120,8 +135,20 @@ def test_addon_command_line_defaults_are_the_options_defaults():
     # (blender_addon.core is core under a second name, so compare the values)
     assert dataclasses.asdict(options_from_args(args)) == dataclasses.asdict(Options())
     args = addon_parser(with_blend=True).parse_args(
-        ["scene.blend", "--lambda", "auto", "--texture-size", "3", "--working-res", "0.5", "--cameras", "a", "b",
-         "--save"])
+        [
+            "scene.blend",
+            "--lambda",
+            "auto",
+            "--texture-size",
+            "3",
+            "--working-res",
+            "0.5",
+            "--cameras",
+            "a",
+            "b",
+            "--save",
+        ]
+    )
     opts = options_from_args(args)
     assert opts.lam is None and opts.texture_size == 3 and opts.working_res_mp == 0.5
     assert opts.camera_names == ["a", "b"] and opts.save_blend
@@ -166,11 +193,14 @@ def test_progress_printer_prints_on_a_new_message_or_a_step():
     out = io.StringIO()
     p = ProgressPrinter(out, step=0.05)
     p(0.0, "bake: a")
-    p(0.01, "bake: a")      # same message, small move: quiet
+    p(0.01, "bake: a")  # same message, small move: quiet
     p(0.06, "bake: a")
     p(0.061, "bake: b")
-    assert out.getvalue().splitlines() == ["delight:   0.0% bake: a", "delight:   6.0% bake: a",
-                                           "delight:   6.1% bake: b"]
+    assert out.getvalue().splitlines() == [
+        "delight:   0.0% bake: a",
+        "delight:   6.0% bake: a",
+        "delight:   6.1% bake: b",
+    ]
 
 
 def test_report_failure_lines_and_statuses():
@@ -179,5 +209,7 @@ def test_report_failure_lines_and_statuses():
     assert report_failure(ValueError("bad array"), out) == 1
     assert report_failure(Cancelled("cancelled"), out) == 130
     assert report_failure(KeyboardInterrupt(), out) == 130
-    assert out.getvalue().splitlines() == ["error: no mesh", "error: bad array"] + \
-        ["delight: interrupted; nothing was written"] * 2
+    assert (
+        out.getvalue().splitlines()
+        == ["error: no mesh", "error: bad array"] + ["delight: interrupted; nothing was written"] * 2
+    )

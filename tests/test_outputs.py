@@ -1,4 +1,5 @@
 """core.io.outputs: one lighting.json schema, all-or-nothing writes, Delight's own files, inputs never written."""
+
 from __future__ import annotations
 
 import errno
@@ -10,15 +11,23 @@ import sys
 
 import numpy as np
 import pytest
+from test_bundle_cli import ROOT, make_problem
 
 from core.errors import Cancelled, DelightError
 from core.io import outputs
 from core.io.bundle import save_bundle
 from core.io.exr import read_exr
-from core.io.outputs import (check_inputs, check_writable, lighting_json, own_files, plan_outputs, rgba,
-                             view_files, write_outputs)
+from core.io.outputs import (
+    check_inputs,
+    check_writable,
+    lighting_json,
+    own_files,
+    plan_outputs,
+    rgba,
+    view_files,
+    write_outputs,
+)
 from core.solve.sh import SH_BASIS_NAMES
-from test_bundle_cli import ROOT, make_problem
 
 
 def chmod_stops_writes(tmp_path) -> bool:
@@ -55,19 +64,24 @@ def run_files(names=("a", "b"), value=0.25, sigma_value=1.0):
     contents = {"thing_albedo.exr": rgba(np.full((4, 4, 3), value), np.ones((4, 4)))}
     for f in files:
         contents[f] = rgba(np.full((3, 5, 3), value), np.eye(3, 5, dtype=bool))
-    contents[outputs.LIGHTING] = lighting_json(list(names), files, np.full((len(names), 3, 9), sigma_value),
-                                               method="texture")
+    contents[outputs.LIGHTING] = lighting_json(
+        list(names), files, np.full((len(names), 3, 9), sigma_value), method="texture"
+    )
     return contents
 
 
 def test_lighting_json_schema():
-    light = lighting_json(["cam/1", "cam 2"], view_files(["cam/1", "cam 2"]), np.arange(54.0).reshape(2, 3, 9),
-                          method="image")
+    light = lighting_json(
+        ["cam/1", "cam 2"], view_files(["cam/1", "cam 2"]), np.arange(54.0).reshape(2, 3, 9), method="image"
+    )
     assert list(light) == ["sh_basis", "channels", "normals", "method", "views"]
     assert light["sh_basis"] == list(SH_BASIS_NAMES) and len(light["sh_basis"]) == 9
     assert light["channels"] == ["R", "G", "B"] and light["normals"] == "world space, unit length"
-    assert light["views"][1] == {"name": "cam 2", "file": "views/cam_2.exr",
-                                 "sh": np.arange(27.0, 54.0).reshape(3, 9).tolist()}
+    assert light["views"][1] == {
+        "name": "cam 2",
+        "file": "views/cam_2.exr",
+        "sh": np.arange(27.0, 54.0).reshape(3, 9).tolist(),
+    }
     none = lighting_json(["a"], ["views/a.exr"], None, 3, "project")
     assert none["views"] == [{"name": "a", "file": "views/a.exr", "sh": None}] and none["channels"] == ["R", "G", "B"]
     assert lighting_json(["a"], ["views/a.exr"], np.zeros((1, 1, 9)))["channels"] == ["Y"]
@@ -83,7 +97,7 @@ def test_rgba_packs_grey_nan_and_alpha():
     np.testing.assert_array_equal(out[..., 0], [[1, 0], [0, 0]])
     np.testing.assert_array_equal(out[..., 3], a)
     assert (out[..., 0] == out[..., 2]).all()
-    assert rgba(v, a, zero_outside=False)[1, 1, 1] == 2.0   # filled texels keep their colour
+    assert rgba(v, a, zero_outside=False)[1, 1, 1] == 2.0  # filled texels keep their colour
 
 
 def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_path):
@@ -91,7 +105,7 @@ def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_p
     written = write_outputs(out, run_files(), {"run": 1})
     rels = ["thing_albedo.exr", "views/a.exr", "views/b.exr", "lighting.json", "report.json"]
     assert written == [str(out / r) for r in rels]
-    assert sorted(snapshot(out)) == sorted(rels)        # no staging folder left
+    assert sorted(snapshot(out)) == sorted(rels)  # no staging folder left
     report = json.loads((out / "report.json").read_text())
     assert report == {"run": 1, "files": rels}
     assert own_files(out) == set(rels)
@@ -99,8 +113,9 @@ def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_p
     # Same names, new contents; and one view fewer: its old file goes, the folder holds one run.
     (out / "notes.txt").write_text("the user's")
     write_outputs(out, run_files(names=("a",), value=0.5, sigma_value=2.0), lambda: {"run": 2})
-    assert sorted(snapshot(out)) == sorted(["thing_albedo.exr", "views/a.exr", "lighting.json", "report.json",
-                                            "notes.txt"])
+    assert sorted(snapshot(out)) == sorted(
+        ["thing_albedo.exr", "views/a.exr", "lighting.json", "report.json", "notes.txt"]
+    )
     assert read_exr(out / "views" / "a.exr")[0][0, 0, 0] == 0.5
     assert json.loads((out / "lighting.json").read_text())["views"][0]["sh"][0][0] == 2.0
     assert json.loads((out / "report.json").read_text())["run"] == 2
@@ -111,8 +126,11 @@ def test_a_foreign_file_is_refused_unless_overwrite(tmp_path):
     out = tmp_path / "out"
     (out / "views").mkdir(parents=True)
     (out / "views" / "b.exr").write_bytes(b"precious")
-    with pytest.raises(DelightError, match=r"views/b.exr already exists and was not written by Delight; "
-                                           r"choose another output folder or pass --overwrite"):
+    with pytest.raises(
+        DelightError,
+        match=r"views/b.exr already exists and was not written by Delight; "
+        r"choose another output folder or pass --overwrite",
+    ):
         write_outputs(out, run_files(), {})
     assert snapshot(out) == {"views/b.exr": b"precious"}
     write_outputs(out, run_files(), {}, overwrite=True)
@@ -124,10 +142,11 @@ def test_a_report_that_lists_odd_names_owns_nothing_outside(tmp_path):
     out.mkdir()
     (tmp_path / "secret.txt").write_text("keep")
     (out / ".hidden").write_text("keep")
-    (out / "report.json").write_text(json.dumps({"files": ["report.json", "../secret.txt", ".hidden",
-                                                           "/etc/passwd", "views/../../x", 7]}))
+    (out / "report.json").write_text(
+        json.dumps({"files": ["report.json", "../secret.txt", ".hidden", "/etc/passwd", "views/../../x", 7]})
+    )
     assert own_files(out) == {"report.json"}
-    (out / "report.json").write_text(json.dumps({"files": ["lighting.json"]}))   # not a Delight report
+    (out / "report.json").write_text(json.dumps({"files": ["lighting.json"]}))  # not a Delight report
     assert own_files(out) == set()
     (out / "report.json").write_text("not json")
     assert own_files(out) == set()
@@ -166,7 +185,7 @@ def test_an_output_that_is_an_input_is_refused_even_with_overwrite(tmp_path):
     os.link(photo, tmp_path / "hard.exr")
     with pytest.raises(DelightError, match="hard.exr"):
         check_inputs([str(tmp_path / "hard.exr")], [str(photo)])
-    check_inputs([str(photo), "", None], [str(blend_dir / "views" / "b.exr")])   # no clash
+    check_inputs([str(photo), "", None], [str(blend_dir / "views" / "b.exr")])  # no clash
 
 
 def count_checks(out, **kw):
@@ -175,6 +194,7 @@ def count_checks(out, **kw):
     def cancel():
         calls.append(1)
         return False
+
     write_outputs(out, run_files(), {}, cancel=cancel, **kw)
     return len(calls)
 
@@ -189,12 +209,13 @@ def test_cancel_at_any_check_keeps_the_earlier_outputs(tmp_path):
     for k in range(1, n + 1):
         calls = []
 
-        def cancel():
+        def cancel(calls=calls, k=k):
             calls.append(1)
             return len(calls) == k
+
         with pytest.raises(Cancelled):
             write_outputs(out, run_files(value=0.75), {"run": 2}, cancel=cancel)
-        assert snapshot(out) == before, k       # nothing new, nothing lost, no staging folder
+        assert snapshot(out) == before, k  # nothing new, nothing lost, no staging folder
     # A cancel into a new folder leaves no folder behind.
     with pytest.raises(Cancelled):
         write_outputs(tmp_path / "new" / "deep", run_files(), {}, cancel=lambda: True)
@@ -211,6 +232,7 @@ def test_a_full_disk_midway_is_a_delight_error_and_changes_nothing(tmp_path):
         with open(path, "wb") as fh:
             fh.write(b"half")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), path)
+
     files["views/b.exr"] = full_disk
     with pytest.raises(DelightError, match=r"cannot write to .*out: the disk is full"):
         write_outputs(out, files, {"run": 2})
@@ -228,6 +250,7 @@ def test_a_failed_move_aside_is_undone(tmp_path):
         (staging,) = [d for d in os.listdir(out) if d.startswith(".delight-")]
         os.rmdir(out / staging / "old" / "views")
         return {"run": 2}
+
     with pytest.raises(DelightError, match="cannot write to"):
         write_outputs(out, run_files(value=0.75), report)
     assert snapshot(out) == before
@@ -245,6 +268,7 @@ def test_a_failed_move_into_place_is_undone(tmp_path):
         # albedo was moved: the swap must put it back.
         os.chmod(out / "views", 0o500)
         return {"run": 2}
+
     try:
         with pytest.raises(DelightError, match="permission denied"):
             write_outputs(out, run_files(value=0.75), report)
@@ -258,7 +282,7 @@ def test_unwritable_folder_is_found_before_writing(tmp_path):
     with pytest.raises(DelightError, match=r"cannot write to .*file.*: .*file is a file, not a folder"):
         check_writable(tmp_path / "file" / "out")
     check_writable(tmp_path / "new" / "deep")
-    assert sorted(os.listdir(tmp_path)) == ["file"]      # the probe created nothing
+    assert sorted(os.listdir(tmp_path)) == ["file"]  # the probe created nothing
     if chmod_stops_writes(tmp_path):
         locked = tmp_path / "locked"
         locked.mkdir()
@@ -284,25 +308,33 @@ def test_ctrl_c_is_held_during_the_swap_and_raised_after():
 
 # ---------------------------------------------------------------- python -m core solve
 
+
 def solve_cli(*args):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "core", "solve", *map(str, args), "--max-iter", "1"], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "core", "solve", *map(str, args), "--max-iter", "1"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_cli_reruns_refuses_foreign_files_and_unwritable_folders_before_the_solve(tmp_path):
     bundle = tmp_path / "problem.npz"
     save_bundle(bundle, make_problem(sizes=((24, 32),) * 2, names=["left", "right"]))
     out = tmp_path / "out"
-    for _ in range(2):   # the second run replaces the first's files without --overwrite
+    for _ in range(2):  # the second run replaces the first's files without --overwrite
         r = solve_cli(bundle, "--out", out)
         assert r.returncode == 0, r.stderr
-    assert sorted(snapshot(out)) == ["albedo.exr", "lighting.json", "report.json", "views/left.exr",
-                                     "views/right.exr"]
+    assert sorted(snapshot(out)) == ["albedo.exr", "lighting.json", "report.json", "views/left.exr", "views/right.exr"]
     light = json.loads((out / "lighting.json").read_text())
     assert list(light) == ["sh_basis", "channels", "normals", "method", "views"]
-    assert [(v["name"], v["file"]) for v in light["views"]] == [("left", "views/left.exr"),
-                                                                ("right", "views/right.exr")]
+    assert [(v["name"], v["file"]) for v in light["views"]] == [
+        ("left", "views/left.exr"),
+        ("right", "views/right.exr"),
+    ]
 
     other = tmp_path / "other"
     (other / "views").mkdir(parents=True)

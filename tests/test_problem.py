@@ -20,7 +20,7 @@ def test_valid_problem():
 def _expect(match, **changes):
     imgs, masks, nrms = _views()
     kw = dict(images=imgs, masks=masks, normals=nrms)
-    for k, f in changes.items():
+    for f in changes.values():
         f(kw)
     with pytest.raises(ValueError, match=match):
         Problem(**kw)

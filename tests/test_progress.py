@@ -1,11 +1,11 @@
 """Time left, the progress bar's text and the headless progress lines (core.progress)."""
+
 import io
 
 import pytest
 
 from core.evaluate.synthetic import sphere_scene
-from core.progress import (ProgressPrinter, ProgressState, TimeLeft, format_time_left, short_message,
-                           stage_progress)
+from core.progress import ProgressPrinter, ProgressState, TimeLeft, format_time_left, short_message, stage_progress
 from core.solve.solver import SolverParams, solve
 
 
@@ -21,9 +21,9 @@ class Clock:
 
 def test_time_left_is_none_early_then_follows_a_steady_rate():
     t = TimeLeft(warmup=2.0, min_progress=0.01)
-    assert t.update(0.3, 10.0) is None            # the first pair only starts the clock
-    assert t.update(0.305, 10.5) is None          # too soon, too little progress
-    assert t.update(0.32, 11.0) is None           # still in the warm-up
+    assert t.update(0.3, 10.0) is None  # the first pair only starts the clock
+    assert t.update(0.305, 10.5) is None  # too soon, too little progress
+    assert t.update(0.32, 11.0) is None  # still in the warm-up
     # 0.05 of the run every second from 0.3: at 0.5 (t=14) there are 10 s left.
     assert t.update(0.5, 14.0) == pytest.approx(10.0)
     for k in range(1, 5):
@@ -41,7 +41,7 @@ def test_time_left_is_smoothed_and_counts_down_between_updates():
     smoothed = t.update(0.2, 4.0)
     aged = 9.0 - 3.0
     assert smoothed == pytest.approx(aged + 0.3 * (raw - aged))
-    assert t.estimate(6.0) == pytest.approx(smoothed - 2.0)   # counts down without updates
+    assert t.estimate(6.0) == pytest.approx(smoothed - 2.0)  # counts down without updates
     assert t.estimate(1000.0) == 0.0
     with pytest.raises(ValueError):
         TimeLeft(smoothing=0.0)
@@ -54,9 +54,18 @@ def test_time_left_does_not_count_what_came_before_its_first_pair():
     assert t.update(0.65, 55.0) == pytest.approx(5.0)
 
 
-@pytest.mark.parametrize("seconds,text", [(None, ""), (0.4, ""), (3, "a few seconds left"),
-                                          (34, "about 35 s left"), (59, "about 60 s left"),
-                                          (125, "about 2 min left"), (4000, "about 1 h 07 min left")])
+@pytest.mark.parametrize(
+    "seconds,text",
+    [
+        (None, ""),
+        (0.4, ""),
+        (3, "a few seconds left"),
+        (34, "about 35 s left"),
+        (59, "about 60 s left"),
+        (125, "about 2 min left"),
+        (4000, "about 1 h 07 min left"),
+    ],
+)
 def test_format_time_left(seconds, text):
     assert format_time_left(seconds) == text
 
@@ -64,8 +73,11 @@ def test_format_time_left(seconds, text):
 def test_short_message_on_the_solvers_own_messages():
     scene = sphere_scene(n_views=3, height=240, width=320, texture_size=128, seed=1)
     seen = []
-    solve(scene.problem, SolverParams(levels=3, coarse_iter=2, max_iter=3, min_iter=3),
-          progress=stage_progress(lambda f, m: seen.append(m), "solve"))
+    solve(
+        scene.problem,
+        SolverParams(levels=3, coarse_iter=2, max_iter=3, min_iter=3),
+        progress=stage_progress(lambda f, m: seen.append(m), "solve"),
+    )
     short = [short_message(m, max_iter=3) for m in seen]
     assert any(m.startswith("solve: coarse level") for m in seen)
     assert "solve: iteration 1/3" in short and "solve: iteration 3/3" in short
@@ -73,8 +85,10 @@ def test_short_message_on_the_solvers_own_messages():
     assert coarse and all("energy" not in m and "/" not in m for m in coarse)
     assert any(m.endswith(", iteration 2") for m in coarse)
     # Nested coarse levels name the one being solved.
-    assert short_message("solve: coarse level 64: coarse level 32: iteration 4, energy 2", 3) == \
-        "solve: coarse level 32, iteration 4"
+    assert (
+        short_message("solve: coarse level 64: coarse level 32: iteration 4, energy 2", 3)
+        == "solve: coarse level 32, iteration 4"
+    )
     assert short_message("bake: baking cam (2/4)", 3) == "bake: baking cam (2/4)"
     assert short_message("solve: iteration 7, energy 1.5e+03") == "solve: iteration 7"
 
@@ -90,7 +104,7 @@ def test_progress_state_gives_the_bar():
     assert factor == pytest.approx(0.48)
     # 0.18 of the run in 10 s: 0.52 more takes about 29 s.
     assert text == "solve: iteration 12/40 — about 30 s left"
-    state(0.5)                       # no message: the last one stays
+    state(0.5)  # no message: the last one stays
     assert state.bar()[1].startswith("solve: iteration 12/40")
     state(7.0, "write: done")
     assert state.bar() == (1.0, "write: done")
@@ -104,5 +118,8 @@ def test_progress_printer_adds_the_time_left():
     p(0.25, "bake: b")
     clock.now += 5
     p(0.5, "solve: c")
-    assert out.getvalue().splitlines() == ["delight:   0.0% bake: a", "delight:  25.0% bake: b (about 15 s left)",
-                                           "delight:  50.0% solve: c (about 10 s left)"]
+    assert out.getvalue().splitlines() == [
+        "delight:   0.0% bake: a",
+        "delight:  25.0% bake: b (about 15 s left)",
+        "delight:  50.0% solve: c (about 10 s left)",
+    ]

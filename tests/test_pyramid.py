@@ -1,14 +1,14 @@
 import numpy as np
 import pytest
 
-from core.solve import pyramid
+from core.evaluate.synthetic import sphere_scene
 from core.geometry.bilinear import masked_corners
 from core.geometry.correspondences import find_correspondences
-from core.solve.problem import Correspondences, Problem
-from core.solve.discretization import texture_domain
-from core.solve.pyramid import coarsen, upsample_pixels
 from core.geometry.texels import uv_of_texel
-from core.evaluate.synthetic import sphere_scene
+from core.solve import pyramid
+from core.solve.discretization import texture_domain
+from core.solve.problem import Problem
+from core.solve.pyramid import coarsen, upsample_pixels
 
 
 @pytest.fixture(scope="module")
@@ -18,8 +18,16 @@ def scene():
     corr = find_correspondences(sc.cameras, sc.positions, p.masks, p.normals, max_pairs=10**7, neighbours=4)
     # Each weight names its pair's source pixel, so the test can tell which pairs survived.
     corr.weight = (corr.view_a * 10**6 + corr.pixel_a + 1).astype(np.float64)
-    problem = Problem(p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture,
-                      view_weight=p.view_weight, names=p.names)
+    problem = Problem(
+        p.images,
+        p.masks,
+        p.normals,
+        correspondences=corr,
+        uv=p.uv,
+        texture=p.texture,
+        view_weight=p.view_weight,
+        names=p.names,
+    )
     return sc, problem
 
 
@@ -83,14 +91,14 @@ def test_upsample_pixels_is_bilinear_inside_the_coarse_mask():
     h, w = 20, 30
     r, c = np.mgrid[0:h, 0:w]
     fine_truth = (1 + 0.1 * r - 0.05 * c).astype(np.float32)
-    coarse = fine_truth[::2, ::2][..., None].copy()          # coarse (R, C) is fine (2R, 2C)
-    coarse[:, :3] = np.nan                                   # outside the coarse mask
+    coarse = fine_truth[::2, ::2][..., None].copy()  # coarse (R, C) is fine (2R, 2C)
+    coarse[:, :3] = np.nan  # outside the coarse mask
     mask = np.ones((h, w), bool)
     up = upsample_pixels(coarse, mask)[:, 0].reshape(h, w)
     inner = np.zeros((h, w), bool)
-    inner[:-2, 6:-2] = True                                  # every corner inside the coarse mask
+    inner[:-2, 6:-2] = True  # every corner inside the coarse mask
     np.testing.assert_allclose(up[inner], fine_truth[inner], atol=1e-5)
-    assert np.all(np.isnan(up[:, :5]))                       # on or between masked-out coarse pixels
+    assert np.all(np.isnan(up[:, :5]))  # on or between masked-out coarse pixels
     assert np.all(np.isfinite(up[:, 5:]))
 
 
@@ -111,12 +119,14 @@ def test_upsample_bilinear_is_exact_for_a_linear_albedo():
     sc = sphere_scene(n_views=6, height=60, width=80, texture_size=64, seed=2)
     layout = sc.problem.texture
     coarse_layout = pyramid.with_texture_size(sc.problem, 32).texture
+
     def linear(n):
         r, c = np.mgrid[0:n, 0:n]
         uv = uv_of_texel(r, c, n)
         return (0.2 + 0.5 * uv[..., 0] + 0.3 * uv[..., 1])[..., None].astype(np.float32)
+
     seen = coarse_layout.inside.copy()
-    seen[:, :4] = False                                   # a part no camera saw stays unseen
+    seen[:, :4] = False  # a part no camera saw stays unseen
     coarse = np.where(seen[..., None], linear(32), np.nan)
     fine, fine_seen = pyramid.upsample_bilinear(coarse, seen, layout)
     assert fine.shape == (64, 64, 1) and not fine_seen[:, :8].any()

@@ -1,14 +1,20 @@
 """core.geometry.raycast.raycast against analytic ray casting (the Cycles check is in tests/bpy)."""
+
 import numpy as np
 
 from core.geometry.camera import Camera
 from core.geometry.raycast import raycast
 
 
-def camera(R=np.eye(3), eye=(0.0, 0.0, 0.0), w=40, h=30, f=25.0, skew=0.0):
-    R = np.asarray(R, float)
-    return Camera(K=[[f, skew, (w - 1) / 2 + 0.3], [0, f * 1.1, (h - 1) / 2 - 0.2], [0, 0, 1]], R=R,
-                  t=-R @ np.asarray(eye, float), width=w, height=h)
+def camera(R=None, eye=(0.0, 0.0, 0.0), w=40, h=30, f=25.0, skew=0.0):
+    R = np.eye(3) if R is None else np.asarray(R, float)
+    return Camera(
+        K=[[f, skew, (w - 1) / 2 + 0.3], [0, f * 1.1, (h - 1) / 2 - 0.2], [0, 0, 1]],
+        R=R,
+        t=-R @ np.asarray(eye, float),
+        width=w,
+        height=h,
+    )
 
 
 def grid_quads(n, size, z):
@@ -55,8 +61,8 @@ def test_ground_plane_reaching_behind_the_camera():
 
 def test_nearest_hit_wins_and_shared_edges_leave_no_holes():
     cam = camera(skew=0.7)
-    near = grid_quads(7, 1.0, 4.0)   # a fine grid (many shared edges), nearer
-    far = grid_quads(2, 10.0, 6.0)   # a plane behind it, filling the frame
+    near = grid_quads(7, 1.0, 4.0)  # a fine grid (many shared edges), nearer
+    far = grid_quads(2, 10.0, 6.0)  # a plane behind it, filling the frame
     tris = np.concatenate([far, near])
     hits = raycast(cam, tris, batch=500)  # tiny batches: the depth test across batches
     d = cam.ray_directions()

@@ -10,7 +10,7 @@ def test_sh_basis_matches_closed_form():
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     nu = sh_basis(n, np.float64)
     for (n1, n2, n3), row in zip(n, nu):
-        expected = [n1, n2, n3, 1, n1 * n2, n1 * n3, n2 * n3, n1 ** 2 - n2 ** 2, 3 * n3 ** 2 - 1]
+        expected = [n1, n2, n3, 1, n1 * n2, n1 * n3, n2 * n3, n1**2 - n2**2, 3 * n3**2 - 1]
         np.testing.assert_allclose(row, expected, rtol=1e-12, atol=1e-12)
 
 
@@ -36,11 +36,12 @@ def test_majorant_is_above_huber_and_touches_at_x0():
 
 def test_huber_branches():
     d = 0.1
-    np.testing.assert_allclose(huber(np.array([0.05, -0.5]), d), [0.05 ** 2 / 0.2, 0.5 - 0.05])
+    np.testing.assert_allclose(huber(np.array([0.05, -0.5]), d), [0.05**2 / 0.2, 0.5 - 0.05])
 
 
 def test_inplace_huber_matches_the_definition():
     from core.solve.huber import huber_inplace
+
     x = np.linspace(-0.01, 0.01, 1001)
     for dt in (np.float64, np.float32):
         np.testing.assert_allclose(huber_inplace(x.astype(dt), 1e-3), huber(x, 1e-3), rtol=1e-5, atol=1e-9)

@@ -3,14 +3,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from core.solve import pyramid
-from core.geometry.correspondences import find_correspondences
-from core.evaluate.metrics import scaled_rmse
-from core.solve.problem import Correspondences, Problem
-from core.solve.discretization import texture_domain
 from core.errors import Cancelled
-from core.solve.solver import SolverParams, energy, solve
+from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
+from core.geometry.correspondences import find_correspondences
+from core.solve import pyramid
+from core.solve.discretization import texture_domain
+from core.solve.problem import Correspondences, Problem
+from core.solve.solver import SolverParams, energy, solve
 
 
 def _view_rmse(result, scene):
@@ -32,8 +32,7 @@ def varying():
 
 @pytest.fixture(scope="module")
 def fixed():
-    return sphere_scene(varying_light=False, n_views=6, height=60, width=80, texture_size=48, seed=4,
-                        noise=0.005)
+    return sphere_scene(varying_light=False, n_views=6, height=60, width=80, texture_size=48, seed=4, noise=0.005)
 
 
 @pytest.fixture(scope="module")
@@ -42,14 +41,32 @@ def textured():
     return sphere_scene(varying_light=True, n_views=6, height=60, width=80, texture_size=48, seed=3, textured=True)
 
 
-@pytest.mark.parametrize("domain,data_model,gauss_newton,extrapolate", [
-    ("texture", "interpolate", False, 1.0), ("texture", "splat", False, 1.0), ("image", "interpolate", False, 1.0),
-    ("texture", "interpolate", True, 1.0), ("image", "interpolate", True, 1.0), ("texture", "splat", False, 0.0),
-    ("image", "interpolate", False, 0.0)])
+@pytest.mark.parametrize(
+    "domain,data_model,gauss_newton,extrapolate",
+    [
+        ("texture", "interpolate", False, 1.0),
+        ("texture", "splat", False, 1.0),
+        ("image", "interpolate", False, 1.0),
+        ("texture", "interpolate", True, 1.0),
+        ("image", "interpolate", True, 1.0),
+        ("texture", "splat", False, 0.0),
+        ("image", "interpolate", False, 0.0),
+    ],
+)
 def test_energy_never_increases(varying, domain, data_model, gauss_newton, extrapolate):
-    r = solve(varying.problem, SolverParams(domain=domain, lam=0.5, max_iter=12, min_iter=12, levels=1,
-                                            data_model=data_model, gauss_newton=gauss_newton,
-                                            extrapolate=extrapolate))
+    r = solve(
+        varying.problem,
+        SolverParams(
+            domain=domain,
+            lam=0.5,
+            max_iter=12,
+            min_iter=12,
+            levels=1,
+            data_model=data_model,
+            gauss_newton=gauss_newton,
+            extrapolate=extrapolate,
+        ),
+    )
     e = np.asarray(r.energy)
     assert len(e) == 13
     assert np.all(np.diff(e) <= 0), np.diff(e)
@@ -62,8 +79,12 @@ def test_well_posed_recovery(textured):
     # the data term. Measured, paper protocol (pixels of the views): 0.0012/0.0003/0.0014.
     # Over all seen texels 0.003/0.011/0.018: texels touched only by the corner of a
     # pixel's interpolation (data weight < 0.05) are set by TV alone.
-    r = solve(textured.problem, SolverParams(lam=0.01, delta=1e-4, gauss_newton=True, data_model="interpolate",
-                                             levels=1, max_iter=150, tol=1e-6))
+    r = solve(
+        textured.problem,
+        SolverParams(
+            lam=0.01, delta=1e-4, gauss_newton=True, data_model="interpolate", levels=1, max_iter=150, tol=1e-6
+        ),
+    )
     views = _view_rmse(r, textured)
     assert np.all(views < 0.01), views
     assert np.all(scaled_rmse(r.texture, textured.albedo_texture, r.seen) < 0.03)
@@ -96,8 +117,9 @@ def test_energy_never_increases_after_a_coarse_start(varying, domain, monkeypatc
     monkeypatch.setattr(pyramid, "MIN_SIZE", 16)
     p = varying.problem
     corr = find_correspondences(varying.cameras, varying.positions, p.masks, p.normals, neighbours=3)
-    problem = Problem(p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture,
-                      view_weight=p.view_weight)
+    problem = Problem(
+        p.images, p.masks, p.normals, correspondences=corr, uv=p.uv, texture=p.texture, view_weight=p.view_weight
+    )
     params = SolverParams(domain=domain, lam=0.5, levels=2, coarse_iter=8, max_iter=12, min_iter=12)
     r = solve(problem, params)
     coarse = r.info["coarse"]
@@ -135,8 +157,10 @@ def test_output_scale_convention(varying):
     r = solve(varying.problem, SolverParams(domain="texture", lam=0.1, max_iter=10))
     p = varying.problem
     from core.solve.sh import sh_basis
-    shade = np.concatenate([sh_basis(n[m], np.float64) @ r.sigma[v].T
-                            for v, (n, m) in enumerate(zip(p.normals, p.masks))])
+
+    shade = np.concatenate(
+        [sh_basis(n[m], np.float64) @ r.sigma[v].T for v, (n, m) in enumerate(zip(p.normals, p.masks))]
+    )
     assert np.all(np.abs(shade.mean(axis=0) - 1) < 0.1)
 
 
@@ -175,14 +199,30 @@ def test_correspondences_make_the_views_agree():
 def test_cancel_and_progress(varying):
     calls = []
     with pytest.raises(Cancelled):
-        solve(varying.problem, SolverParams(max_iter=20), progress=lambda f, m: calls.append(f),
-              cancel=lambda: len(calls) >= 3)
+        solve(
+            varying.problem,
+            SolverParams(max_iter=20),
+            progress=lambda f, m: calls.append(f),
+            cancel=lambda: len(calls) >= 3,
+        )
     assert calls and all(0 <= f <= 1 for f in calls)
 
 
-@pytest.mark.parametrize("bad", [dict(lam=-1), dict(mu=-0.5), dict(domain="surface"), dict(delta=0),
-                                 dict(extrapolate=-1), dict(extrapolate=float("nan")), dict(data_model="nearest"),
-                                 dict(max_texels_per_pixel=-1), dict(preconditioner="ilu"), dict(cg_iter=0)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(lam=-1),
+        dict(mu=-0.5),
+        dict(domain="surface"),
+        dict(delta=0),
+        dict(extrapolate=-1),
+        dict(extrapolate=float("nan")),
+        dict(data_model="nearest"),
+        dict(max_texels_per_pixel=-1),
+        dict(preconditioner="ilu"),
+        dict(cg_iter=0),
+    ],
+)
 def test_bad_params(varying, bad):
     with pytest.raises(ValueError):
         solve(varying.problem, SolverParams(**bad))
@@ -191,8 +231,11 @@ def test_bad_params(varying, bad):
 def test_progress_moves_forward_through_the_levels():
     scene = sphere_scene(n_views=4, height=240, width=320, texture_size=128, seed=7)
     seen = []
-    solve(scene.problem, SolverParams(levels=3, coarse_iter=3, max_iter=3, min_iter=3),
-          progress=lambda f, m: seen.append((f, m)))
+    solve(
+        scene.problem,
+        SolverParams(levels=3, coarse_iter=3, max_iter=3, min_iter=3),
+        progress=lambda f, m: seen.append((f, m)),
+    )
     fractions = [f for f, _ in seen]
     assert fractions == sorted(fractions), seen
     assert any("coarse level" in m for _, m in seen) and fractions[-1] == 1.0
@@ -207,5 +250,6 @@ def test_a_texture_finer_than_the_photos_is_solved_coarser_and_sampled_up():
     both = capped.seen & full.seen
     assert both.sum() > 0.9 * full.seen.sum()
     # Measured 0.226/0.228/0.258 against 0.241/0.237/0.276 at full size, in half the time.
-    assert np.all(scaled_rmse(capped.texture, sc.albedo_texture, both)
-                  < scaled_rmse(full.texture, sc.albedo_texture, both) + 0.02)
+    assert np.all(
+        scaled_rmse(capped.texture, sc.albedo_texture, both) < scaled_rmse(full.texture, sc.albedo_texture, both) + 0.02
+    )

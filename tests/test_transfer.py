@@ -11,12 +11,43 @@ def _quad(p0, p1, p2, p3):
 
 
 def _icosphere(levels=2):
-    t = (1 + 5 ** 0.5) / 2
-    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-         (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
-         (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    t = (1 + 5**0.5) / 2
+    v = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    f = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
     tris = np.array([[v[i] for i in face] for face in f], float)
     tris /= np.linalg.norm(tris, axis=2, keepdims=True)
     for _ in range(levels):
@@ -80,7 +111,7 @@ def test_transfer_next_to_a_wall_matches_brute_force(x):
 def test_visibility_sees_the_wall_and_not_the_floor():
     tris = _floor_and_wall()
     p = np.array([[0.0, 0.0, 0.0]])
-    dirs = np.array([[1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]) / np.array([[2 ** 0.5], [2 ** 0.5], [1]])
+    dirs = np.array([[1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]) / np.array([[2**0.5], [2**0.5], [1]])
     vis = visibility(p, np.array([[0.0, 0.0, 1.0]]), tris, dirs, resolution=256)
     assert vis.tolist() == [[False, True, True]]
 
@@ -105,6 +136,7 @@ def test_pixel_transfer_of_open_surface_is_nu():
 def test_higher_orders_are_spherical_harmonics():
     # Orthogonal over the sphere (Fibonacci lattice quadrature), so each band is its own.
     from core.solve.sh import sh_basis, sh_degree
+
     d = sphere_directions(20000)
     Y = sh_basis(d, np.float64, order=4)
     gram = Y.T @ Y / len(d)
@@ -117,6 +149,7 @@ def test_open_surface_transfer_at_order_4():
     # Funk-Hecke: an open point's transfer is nu(n) up to band 2, nothing in band 3 and -1/6 of band 4
     # (the clamped cosine's coefficients), checked against direct quadrature of max(0, n.w) Y(w).
     from core.geometry.transfer import open_factor
+
     n = np.array([0.3, -0.5, 0.81])
     n /= np.linalg.norm(n)
     d = sphere_directions(200000)

@@ -5,8 +5,8 @@ import pytest
 
 from core.geometry.texels import bilinear_texels, texel_index, texel_of_uv, texture_layout, uv_of_texel
 
-
 # ---------------------------------------------------------------- meshes
+
 
 def quad(uv_rect=(0.0, 0.0, 1.0, 1.0), pos_of_uv=None):
     """Two triangles over a UV rectangle (u0, v0, u1, v1), sharing an edge."""
@@ -25,8 +25,14 @@ def cube(gap=0.02):
     cell = 1.0 / 3.0
     for k, f in enumerate(faces):
         cx, cy = (k % 3) * cell, (k // 3) * cell
-        rect = np.array([[cx + gap, cy + gap], [cx + cell - gap, cy + gap],
-                         [cx + cell - gap, cy + cell - gap], [cx + gap, cy + cell - gap]])
+        rect = np.array(
+            [
+                [cx + gap, cy + gap],
+                [cx + cell - gap, cy + gap],
+                [cx + cell - gap, cy + cell - gap],
+                [cx + gap, cy + cell - gap],
+            ]
+        )
         for t in ([0, 1, 2], [0, 2, 3]):
             tri_uv.append(rect[t])
             tri_pos.append(verts[np.array(f)[t]])
@@ -42,13 +48,13 @@ def uv_sphere(nu, nv, pad=0.01):
     pos = np.stack([np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)], -1)
     uv = np.stack([pp / (2 * np.pi), 1 - tt / np.pi], -1) * (1 - 2 * pad) + pad
     vid = np.arange((nv + 1) * (nu + 1)).reshape(nv + 1, nu + 1)
-    vid[:, -1] = vid[:, 0]                      # the seam column is the same vertices
+    vid[:, -1] = vid[:, 0]  # the seam column is the same vertices
     i, j = [a.ravel() for a in np.meshgrid(np.arange(nv), np.arange(nu), indexing="ij")]
     corners = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)]
     idx = []
     for t in ([0, 1, 2], [0, 2, 3]):
         idx.append(np.stack([np.stack(corners[k], -1) for k in t], 1))
-    idx = np.concatenate(idx)                   # (T, 3, 2) grid indices
+    idx = np.concatenate(idx)  # (T, 3, 2) grid indices
     r, c = idx[..., 0], idx[..., 1]
     return uv[r, c], pos[r, c], vid[r, c]
 
@@ -60,6 +66,7 @@ def seam_distances(layout):
 
 
 # ---------------------------------------------------------------- convention
+
 
 def test_texel_convention_and_inverse():
     n = 8
@@ -74,15 +81,17 @@ def test_texel_convention_and_inverse():
 def test_texel_index_contains_point():
     n = 8
     # Texel (r=1, c=2) spans u in [2/8, 3/8], v in [6/8, 7/8].
-    idx = texel_index([[2.01 / n, 6.99 / n], [2.99 / n, 6.01 / n], [0.0, 0.0], [1.0, 1.0],
-                       [-0.01, 0.5], [0.5, 1.01], [np.nan, 0.5]], n)
+    idx = texel_index(
+        [[2.01 / n, 6.99 / n], [2.99 / n, 6.01 / n], [0.0, 0.0], [1.0, 1.0], [-0.01, 0.5], [0.5, 1.01], [np.nan, 0.5]],
+        n,
+    )
     assert idx.tolist() == [1 * n + 2, 1 * n + 2, (n - 1) * n, n - 1, -1, -1, -1]
 
 
 def test_bilinear_texels_interpolate_linear_function():
     n = 16
     rng = np.random.default_rng(1)
-    uv = rng.uniform(1.0 / n, 1 - 1.0 / n, (100, 2))    # away from the border
+    uv = rng.uniform(1.0 / n, 1 - 1.0 / n, (100, 2))  # away from the border
     idx, w = bilinear_texels(uv, np.ones((n, n), bool))
     r, c = np.divmod(np.arange(n * n), n)
     centre_uv = uv_of_texel(r, c, n)
@@ -90,13 +99,13 @@ def test_bilinear_texels_interpolate_linear_function():
     np.testing.assert_allclose(w.sum(axis=1), 1, atol=1e-6)
     np.testing.assert_allclose((f[idx] * w).sum(axis=1), 3 * uv[:, 0] - 2 * uv[:, 1], atol=1e-5)
     # At the border, neighbours outside the texture get weight 0 and the rest are renormalised.
-    idx, w = bilinear_texels([[0.1 / n, 0.5 + 0.25 / n]], np.ones((n, n), bool))    # col -0.4
+    idx, w = bilinear_texels([[0.1 / n, 0.5 + 0.25 / n]], np.ones((n, n), bool))  # col -0.4
     assert np.sum(w[0] == 0) == 2 and np.all(idx[0] >= 0)
     np.testing.assert_allclose(w[0].sum(), 1, atol=1e-6)
     # Texels that are not valid get weight 0 too; none valid gives all zeros.
     valid = np.ones((n, n), bool)
     valid[:, 0] = False
-    idx, w = bilinear_texels([[1.0 / n, 0.5 + 0.25 / n]], valid)    # between columns 0 and 1
+    idx, w = bilinear_texels([[1.0 / n, 0.5 + 0.25 / n]], valid)  # between columns 0 and 1
     assert np.all(w[0][idx[0] % n == 0] == 0) and np.isclose(w[0].sum(), 1)
     assert np.all(bilinear_texels([[0.5, 0.5]], np.zeros((n, n), bool))[1] == 0)
 
@@ -107,6 +116,7 @@ def test_bad_size_raises():
 
 
 # ---------------------------------------------------------------- rasterisation
+
 
 def test_unit_quad_covers_every_texel_with_correct_positions():
     n = 16
@@ -189,12 +199,13 @@ def test_bad_input_raises():
 
 # ---------------------------------------------------------------- seams
 
+
 def test_cube_seam_pairs_link_nearby_texels():
     n = 96
     gap = 0.02
     tri_uv, tri_pos, tri_vert = cube(gap)
     layout = texture_layout(tri_uv, tri_pos, tri_vert, n)
-    texel_world = 1.0 / ((1 / 3 - 2 * gap) * n)      # face side / its size in texels
+    texel_world = 1.0 / ((1 / 3 - 2 * gap) * n)  # face side / its size in texels
     pairs = layout.seam_pairs
     # 12 edges, each about 26 texels long: roughly one pair per texel.
     assert 12 * 20 <= len(pairs) <= 12 * 40
@@ -227,16 +238,16 @@ def test_no_seam_pairs_without_seams():
 
 def test_sphere_2048_is_sane():
     # Speed is a benchmark's business, not a test's (measured 1.1-1.9 s for this mesh on 2 cores).
-    tri_uv, tri_pos, tri_vert = uv_sphere(128, 80)     # 20480 triangles
+    tri_uv, tri_pos, tri_vert = uv_sphere(128, 80)  # 20480 triangles
     assert tri_uv.shape[0] == 20480
     n = 2048
     layout = texture_layout(tri_uv, tri_pos, tri_vert, n)
     inside = layout.inside
     # The island spans [0.01, 0.99]^2 (plus half a texel of conservative border).
     lo, hi = int(np.floor(0.01 * n - 0.5)), int(np.ceil(0.99 * n - 0.5))
-    assert inside[lo + 1:hi, lo + 1:hi].all() and not inside[:lo].any() and not inside[:, hi + 1:].any()
+    assert inside[lo + 1 : hi, lo + 1 : hi].all() and not inside[:lo].any() and not inside[:, hi + 1 :].any()
     r = np.linalg.norm(layout.texel_pos[inside], axis=1)
-    assert np.all((r > 0.999) & (r < 1.0 + 1e-5))      # on or just inside the unit sphere
+    assert np.all((r > 0.999) & (r < 1.0 + 1e-5))  # on or just inside the unit sphere
     # The u seam: pairs join the left and right columns of the island.
     cols = np.sort(layout.seam_pairs % n, axis=1)
     assert len(cols) > 1500
@@ -249,6 +260,7 @@ def test_a_stretched_triangle_across_islands_does_not_move_their_texels():
     # Two islands side by side in UV; an n-gon whose corners lie in both becomes a triangle spanning the gap
     # (and part of the right island). It may fill texels no other face covers, never take theirs.
     from core.geometry.texels import uv_stretched
+
     n = 32
     left_uv = np.array([[[0.05, 0.05], [0.45, 0.05], [0.45, 0.95]], [[0.05, 0.05], [0.45, 0.95], [0.05, 0.95]]])
     right_uv = left_uv + [0.5, 0.0]
@@ -257,13 +269,18 @@ def test_a_stretched_triangle_across_islands_does_not_move_their_texels():
     tri_pos = np.concatenate([pos, pos + [0, 0, 5.0]])
     tri_vert = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
     base = texture_layout(tri_uv, tri_pos, tri_vert, n)
-    span_uv = np.array([[[0.45, 0.5], [0.95, 0.3], [0.95, 0.7]]])      # reaches into the right island
+    span_uv = np.array([[[0.45, 0.5], [0.95, 0.3], [0.95, 0.7]]])  # reaches into the right island
     span_pos = np.array([[[1, 0.5, 0], [1.01, 0.5, 0.0], [1.0, 0.51, 0]]])
-    layout = texture_layout(np.concatenate([tri_uv, span_uv]), np.concatenate([tri_pos, span_pos]),
-                            np.concatenate([tri_vert, [[1, 8, 9]]]), n)
-    assert uv_stretched(np.concatenate([tri_uv, span_uv]), np.concatenate([tri_pos, span_pos])).tolist() == \
-        [False] * 4 + [True]
+    layout = texture_layout(
+        np.concatenate([tri_uv, span_uv]),
+        np.concatenate([tri_pos, span_pos]),
+        np.concatenate([tri_vert, [[1, 8, 9]]]),
+        n,
+    )
+    assert uv_stretched(np.concatenate([tri_uv, span_uv]), np.concatenate([tri_pos, span_pos])).tolist() == [
+        False
+    ] * 4 + [True]
     both = base.inside
     np.testing.assert_array_equal(layout.texel_pos[both], base.texel_pos[both])
-    assert (layout.inside & ~base.inside).any()          # the gap texels it alone covers
+    assert (layout.inside & ~base.inside).any()  # the gap texels it alone covers
     np.testing.assert_array_equal(layout.seam_pairs, base.seam_pairs)

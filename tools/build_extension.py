@@ -17,6 +17,7 @@
 
 Prints the paths of the zips. Exit status 0 on success.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -99,8 +100,21 @@ def download_wheels(platform: str, wheels_dir: str, offline: bool = False) -> li
         if (have := present(python)) is None:
             if offline:
                 raise RuntimeError(f"wheels for {platform}, Python {python} are missing in {platform_dir} (offline)")
-            cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--only-binary=:all:", "--no-deps",
-                   "--python-version", python, "--implementation", "cp", "-d", platform_dir]
+            cmd = [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--quiet",
+                "--only-binary=:all:",
+                "--no-deps",
+                "--python-version",
+                python,
+                "--implementation",
+                "cp",
+                "-d",
+                platform_dir,
+            ]
             for tag in PLATFORMS[platform]:
                 cmd += ["--platform", tag]
             subprocess.run(cmd + requirements, check=True, stdout=subprocess.DEVNULL)
@@ -147,10 +161,13 @@ def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = F
     os.makedirs(out_dir, exist_ok=True)
     cli = blender_ext_cli()
     before = set(glob.glob(os.path.join(out_dir, "*.zip")))
-    subprocess.run([sys.executable, cli, "build", "--source-dir", stage_dir, "--output-dir", out_dir,
-                    "--split-platforms"], check=True)
+    subprocess.run(
+        [sys.executable, cli, "build", "--source-dir", stage_dir, "--output-dir", out_dir, "--split-platforms"],
+        check=True,
+    )
     zips = sorted(set(glob.glob(os.path.join(out_dir, "*.zip"))) - before) or sorted(
-        glob.glob(os.path.join(out_dir, "delight-*.zip")))
+        glob.glob(os.path.join(out_dir, "delight-*.zip"))
+    )
     for z in zips:
         subprocess.run([sys.executable, cli, "validate", z], check=True, stdout=subprocess.DEVNULL)
     return zips
@@ -158,16 +175,23 @@ def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = F
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--platforms", nargs="+", choices=sorted(PLATFORMS), default=sorted(PLATFORMS),
-                   help="platforms to build a zip for (default: all)")
+    p.add_argument(
+        "--platforms",
+        nargs="+",
+        choices=sorted(PLATFORMS),
+        default=sorted(PLATFORMS),
+        help="platforms to build a zip for (default: all)",
+    )
     p.add_argument("--out", default=os.path.join(ROOT, "dist"), help="output folder (default dist/)")
-    p.add_argument("--wheels-dir", default=os.path.join(ROOT, "build", "wheels"),
-                   help="where downloaded wheels are kept (default build/wheels/)")
+    p.add_argument(
+        "--wheels-dir",
+        default=os.path.join(ROOT, "build", "wheels"),
+        help="where downloaded wheels are kept (default build/wheels/)",
+    )
     p.add_argument("--offline", action="store_true", help="use only wheels already downloaded")
     args = p.parse_args(argv)
     try:
-        zips = build(args.platforms, os.path.abspath(args.out), os.path.abspath(args.wheels_dir),
-                     offline=args.offline)
+        zips = build(args.platforms, os.path.abspath(args.out), os.path.abspath(args.wheels_dir), offline=args.offline)
     except (RuntimeError, subprocess.CalledProcessError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -15,6 +15,7 @@ Writes into ``DEST`` (default ``OUT_DIR/pictures``):
 The view is the one with the most pixels on the mesh unless ``--view`` names one. Prints the paths written.
 matplotlib is a development dependency (requirements.txt); the add-on does not need it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,8 +31,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from core.io.exr import read_exr  # noqa: E402
 from core.evaluate.pictures import lighting_spheres, to_srgb8  # noqa: E402
+from core.io.exr import read_exr  # noqa: E402
 
 FILES = ("before_after.png", "lighting.png", "convergence.png")
 #: Figures are laid out in pixels at this resolution, so a picture's size follows from the sizes below.
@@ -60,6 +61,7 @@ def _read_photo(path):
     import bpy
 
     from blender_addon.photos import image_pixels
+
     img = bpy.data.images.load(path, check_existing=False)
     try:
         return image_pixels(img, os.path.basename(path))
@@ -115,8 +117,10 @@ def before_after_pictures(out_dir, report, fixture_dir, view):
             truth = _masked(read_exr(os.path.join(fixture_dir, fx["albedo_view"]))[0], 0.5)
         if truth is not None and truth.shape == ours.shape:
             # Albedo is known up to scale: show ours at the one exposure that fits the truth best.
-            return panels + [(to_srgb8(ours * _one_exposure(ours, truth)), "Our reflectance (scale fitted)"),
-                             (to_srgb8(truth), "True albedo")]
+            return panels + [
+                (to_srgb8(ours * _one_exposure(ours, truth)), "Our reflectance (scale fitted)"),
+                (to_srgb8(truth), "True albedo"),
+            ]
     return panels + [(to_srgb8(ours), "Our reflectance")]
 
 
@@ -137,12 +141,16 @@ def draw_lighting(path, sigmas, names):
     rows = -(-len(spheres) // cols)
     # At least wide enough for the heading.
     fig = _figure(max(PAD + cols * (SPHERE + PAD), 420), TITLE + rows * (TITLE + SPHERE) + PAD)
-    fig.text(PAD / fig.bbox.width, 1 - (TITLE - 6) / fig.bbox.height,
-             "Lighting per view (seen from -Y, +Z up; one exposure)", fontsize=11, va="baseline")
+    fig.text(
+        PAD / fig.bbox.width,
+        1 - (TITLE - 6) / fig.bbox.height,
+        "Lighting per view (seen from -Y, +Z up; one exposure)",
+        fontsize=11,
+        va="baseline",
+    )
     for k, (picture, name) in enumerate(zip(spheres, names)):
         r, c = divmod(k, cols)
-        _image_axes(fig, picture, PAD + c * (SPHERE + PAD), TITLE + r * (TITLE + SPHERE) + TITLE, SPHERE, SPHERE,
-                    name)
+        _image_axes(fig, picture, PAD + c * (SPHERE + PAD), TITLE + r * (TITLE + SPHERE) + TITLE, SPHERE, SPHERE, name)
     _save(fig, path)
 
 
@@ -177,8 +185,14 @@ def draw_convergence(path, levels):
     if log_scale(np.concatenate([np.asarray(e, dtype=np.float64) for _, e in levels])):
         ax.set_yscale("log")
     for k, (label, e) in enumerate(levels):
-        ax.plot(np.arange(len(e)), e, marker="o", markersize=3, linewidth=1.5,
-                label=label if k else f"{label} (final level)")
+        ax.plot(
+            np.arange(len(e)),
+            e,
+            marker="o",
+            markersize=3,
+            linewidth=1.5,
+            label=label if k else f"{label} (final level)",
+        )
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration (0: the starting point)")
     ax.set_ylabel("energy")
@@ -204,7 +218,7 @@ def make_pictures(out_dir, fixture_dir=None, view=None, dest=None) -> list:
     views = [v for v in lighting["views"] if v["sh"] is not None]
     if not views or not report["energy"]:
         raise SystemExit(f"error: {out_dir} has no lighting or energy (method 'project'?)")
-    sigmas = np.array([v["sh"] for v in views])   # (views, channels, 9), schema in core.io.outputs
+    sigmas = np.array([v["sh"] for v in views])  # (views, channels, 9), schema in core.io.outputs
     paths = [os.path.join(dest, f) for f in FILES]
     draw_before_after(paths[0], before_after_pictures(out_dir, report, fixture_dir, view))
     draw_lighting(paths[1], sigmas, [v["name"] for v in views])

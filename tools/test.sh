@@ -11,6 +11,10 @@ read -r -a blenders <<< "${BLENDERS:-5.2 4.2}"
 bash tools/setup.sh "${blenders[@]}"
 export OPENBLAS_NUM_THREADS=1
 status=0
+echo "== ruff: lint and format"
+venv=.venv; [[ " ${blenders[*]} " == *" 5.2 "* ]] || venv=.venv-4.2
+"$venv/bin/ruff" check . || status=$?
+"$venv/bin/ruff" format --check . || status=$?
 for b in "${blenders[@]}"; do
   case "$b" in
     5.2) echo "== Blender 5.2 (.venv): the whole suite"

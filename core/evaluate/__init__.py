@@ -1,13 +1,8 @@
-"""Measuring results: accuracy against ground truth, synthetic problems with a known albedo, pictures of a run.
-"""
+"""Measuring results: accuracy against ground truth, synthetic problems with a known albedo, pictures of a run."""
+
 from .metrics import scaled_rmse
+from .pictures import BACKGROUND, grid, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
 from .synthetic import SyntheticScene, sphere_scene
-from .pictures import (to_srgb8,
-    sphere_normals,
-    shade_sphere,
-    lighting_spheres,
-    grid,
-    BACKGROUND)
 
 __all__ = [
     "scaled_rmse",

@@ -1,4 +1,5 @@
 """Accuracy against ground truth, with the paper's protocol (section 5.1)."""
+
 from __future__ import annotations
 
 import numpy as np

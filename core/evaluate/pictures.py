@@ -6,6 +6,7 @@ by :func:`to_srgb8` (divide by white, clip, then the sRGB curve). Text and
 axes are not drawn here: the panel labels the previews and the demo draws
 with matplotlib.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -43,7 +44,7 @@ def sphere_normals(size: int):
     inside : (size, size) bool
     """
     c = (np.arange(size) + 0.5) / size * 2 - 1
-    x, z = np.meshgrid(c, -c)            # row 0 at the top = +Z
+    x, z = np.meshgrid(c, -c)  # row 0 at the top = +Z
     r2 = x * x + z * z
     inside = r2 < 1
     n = np.stack([x, -np.sqrt(np.clip(1 - r2, 0, None)), z], axis=-1)
@@ -77,7 +78,7 @@ def lighting_spheres(sigmas, size=96, white=None) -> np.ndarray:
     if white is None:
         vals = np.concatenate([s[np.isfinite(s)] for s in shades]) if shades else np.zeros(0)
         p99 = float(np.percentile(vals, 99)) if vals.size else 0.0
-        white = 1.2 * p99 if p99 > 0 else 1.0     # a little headroom so bright sides keep their gradient
+        white = 1.2 * p99 if p99 > 0 else 1.0  # a little headroom so bright sides keep their gradient
     return np.array([to_srgb8(s, white) for s in shades], dtype=np.uint8).reshape(-1, size, size, 3)
 
 
@@ -89,7 +90,7 @@ def grid(pictures, columns=4, gap=6, background=BACKGROUND) -> np.ndarray:
     pics = [np.asarray(p, dtype=np.uint8)[..., :3] for p in pictures]
     if not pics:
         raise ValueError("grid: no pictures")
-    rows = [pics[i:i + columns] for i in range(0, len(pics), columns)]
+    rows = [pics[i : i + columns] for i in range(0, len(pics), columns)]
     widths = [max(r[k].shape[1] for r in rows if k < len(r)) for k in range(min(columns, len(pics)))]
     heights = [max(p.shape[0] for p in r) for r in rows]
     out = np.empty((gap + sum(h + gap for h in heights), gap + sum(w + gap for w in widths), 3), dtype=np.uint8)
@@ -98,7 +99,7 @@ def grid(pictures, columns=4, gap=6, background=BACKGROUND) -> np.ndarray:
     for r, h in zip(rows, heights):
         x = gap
         for p, w in zip(r, widths):
-            out[y:y + p.shape[0], x:x + p.shape[1]] = p
+            out[y : y + p.shape[0], x : x + p.shape[1]] = p
             x += w + gap
         y += h + gap
     return out

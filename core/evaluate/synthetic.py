@@ -5,17 +5,18 @@ benchmarks can check recovered albedo against exact ground truth without
 Blender. UVs are equirectangular: ``u = lon / 2 pi + 1/2``, ``v = lat / pi + 1/2``
 (z up), with the seam at lon = +-pi.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.bilinear import interpolate
 from ..geometry.camera import Camera
+from ..geometry.texels import bilinear_texels
 from ..solve.problem import Problem, TextureLayout
 from ..solve.sh import sh_basis
-from ..geometry.bilinear import interpolate
-from ..geometry.texels import bilinear_texels
 
 __all__ = ["SyntheticScene", "sphere_scene"]
 
@@ -24,10 +25,10 @@ __all__ = ["SyntheticScene", "sphere_scene"]
 class SyntheticScene:
     problem: Problem
     cameras: list
-    albedo_views: list        # (H, W, C) ground truth per view, NaN outside masks
+    albedo_views: list  # (H, W, C) ground truth per view, NaN outside masks
     albedo_texture: np.ndarray  # (N, N, C) ground truth on the texels
-    sigma: np.ndarray         # (m, C, 9) true lighting
-    positions: list           # (H, W, 3) hit points, NaN outside masks
+    sigma: np.ndarray  # (m, C, 9) true lighting
+    positions: list  # (H, W, 3) hit points, NaN outside masks
 
 
 def _look_at(eye, target=(0, 0, 0), up=(0, 0, 1)):
@@ -83,9 +84,20 @@ def _lighting(rng, n_views, channels, varying):
     return sig
 
 
-def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_cells=12,
-                 varying_light=False, noise=0.0, seed=0, distance=3.5,
-                 smooth_albedo=False, textured=False) -> SyntheticScene:
+def sphere_scene(
+    n_views=6,
+    height=60,
+    width=80,
+    channels=3,
+    texture_size=64,
+    n_cells=12,
+    varying_light=False,
+    noise=0.0,
+    seed=0,
+    distance=3.5,
+    smooth_albedo=False,
+    textured=False,
+) -> SyntheticScene:
     """A unit sphere with a piecewise-constant albedo, seen by ``n_views`` cameras on two rings.
 
     The albedo is defined on the sphere (nearest of ``n_cells`` random cell
@@ -143,12 +155,21 @@ def sphere_scene(n_views=6, height=60, width=80, channels=3, texture_size=64, n_
         gts.append(alb.astype(np.float32))
         poss.append(p)
     r = np.arange(N)
-    seam = np.concatenate([
-        np.stack([r * N, r * N + N - 1], axis=1),                       # lon = -pi <-> +pi
-        np.stack([r[: N // 2], (r[: N // 2] + N // 2) % N], axis=1),    # across the north pole
-        np.stack([(N - 1) * N + r[: N // 2], (N - 1) * N + (r[: N // 2] + N // 2) % N], axis=1),
-    ])
+    seam = np.concatenate(
+        [
+            np.stack([r * N, r * N + N - 1], axis=1),  # lon = -pi <-> +pi
+            np.stack([r[: N // 2], (r[: N // 2] + N // 2) % N], axis=1),  # across the north pole
+            np.stack([(N - 1) * N + r[: N // 2], (N - 1) * N + (r[: N // 2] + N // 2) % N], axis=1),
+        ]
+    )
     layout = TextureLayout(tex_pos, seam)
-    problem = Problem(images, masks, normals, uv=uvs, texture=layout, view_weight=weights,
-                      names=[f"cam{v:02d}" for v in range(n_views)])
+    problem = Problem(
+        images,
+        masks,
+        normals,
+        uv=uvs,
+        texture=layout,
+        view_weight=weights,
+        names=[f"cam{v:02d}" for v in range(n_views)],
+    )
     return SyntheticScene(problem, cams, gts, texture_albedo.astype(np.float32), sigma, poss)

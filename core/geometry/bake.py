@@ -7,15 +7,16 @@ tests/bpy/test_scene_bake.py) and is faster than rendering Cycles passes or
 calling ``BVHTree.ray_cast`` per pixel. Shading follows Cycles: the normal is
 the interpolated corner normal, flipped when the ray hits a face's back side.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from .raycast import raycast
 from ..errors import DelightError
 from ..progress import check_cancel
+from .raycast import raycast
 
 __all__ = ["ViewBake", "bake_view", "bake_views"]
 
@@ -24,10 +25,10 @@ __all__ = ["ViewBake", "bake_view", "bake_views"]
 class ViewBake:
     """What one view sees of the target mesh, per pixel (row 0 at the top)."""
 
-    mask: np.ndarray         # (H, W) bool, the ray hits the target mesh
-    normal: np.ndarray       # (H, W, 3) float32 unit shading normal, world space (0 outside)
-    uv: np.ndarray           # (H, W, 2) float32 active UV at the hit (0 outside)
-    position: np.ndarray     # (H, W, 3) float32 world hit point (NaN outside)
+    mask: np.ndarray  # (H, W) bool, the ray hits the target mesh
+    normal: np.ndarray  # (H, W, 3) float32 unit shading normal, world space (0 outside)
+    uv: np.ndarray  # (H, W, 2) float32 active UV at the hit (0 outside)
+    position: np.ndarray  # (H, W, 3) float32 world hit point (NaN outside)
     view_weight: np.ndarray  # (H, W) float32 cos(normal, direction to the camera) in [0, 1] (0 outside)
 
 

@@ -2,6 +2,7 @@
 
 Continuous coordinates put the centre of cell ``(row r, col c)`` at ``(x, y) = (c, r)``.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -7,6 +7,7 @@ centre of pixel ``(row r, col c)`` is at ``(x, y) = (c, r)``. A Blender
 camera (looking down -Z with +Y up, pixel centres at ``c + 0.5``) converts
 with ``R_cv = diag(1, -1, -1) @ R_blender`` and ``cx_core = cx_blender - 0.5``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -66,7 +67,7 @@ class Camera:
 
     def ray_directions(self) -> np.ndarray:
         """Unit world-space ray directions through every pixel centre, ``(H, W, 3)``."""
-        ys, xs = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+        ys, xs = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
         d = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(self.K).T
         d = d @ self.R  # camera to world: R^T d, written for row vectors
         return d / np.linalg.norm(d, axis=-1, keepdims=True)

@@ -10,6 +10,7 @@ point is really visible at q in view b:
   depth at q (bilinear), so occluded points are rejected;
 * the normals of the two views agree there, and the surface faces camera b.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,8 +57,10 @@ class Correspondences:
         self.xy_b = np.asarray(self.xy_b, dtype=np.float64).reshape(-1, 2)
         k = self.view_a.size
         if not (self.pixel_a.size == self.view_b.size == self.xy_b.shape[0] == k):
-            _fail(f"correspondences: view_a, pixel_a, view_b and xy_b must have the same length "
-                  f"(got {k}, {self.pixel_a.size}, {self.view_b.size}, {self.xy_b.shape[0]})")
+            _fail(
+                f"correspondences: view_a, pixel_a, view_b and xy_b must have the same length "
+                f"(got {k}, {self.pixel_a.size}, {self.view_b.size}, {self.xy_b.shape[0]})"
+            )
         if self.weight is None:
             self.weight = np.ones(k, dtype=np.float64)
         else:
@@ -98,12 +101,13 @@ def neighbour_views(cameras, positions, masks, neighbours):
         cos = dirs[a] @ dirs[a][a]
         cos[a] = -np.inf
         order = np.argsort(-cos, kind="stable")
-        out.append([int(b) for b in order[:max(0, min(neighbours, m - 1))]])
+        out.append([int(b) for b in order[: max(0, min(neighbours, m - 1))]])
     return out
 
 
-def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000, depth_tol=0.01,
-                         neighbours=4, seed=0, min_normal_cos=0.8) -> Correspondences:
+def find_correspondences(
+    cameras, positions, masks, normals, max_pairs=2_000_000, depth_tol=0.01, neighbours=4, seed=0, min_normal_cos=0.8
+) -> Correspondences:
     """Pairs of pixels of different views that see the same surface point.
 
     Parameters
@@ -133,8 +137,9 @@ def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000
     """
     m = len(cameras)
     if not (len(positions) == len(masks) == len(normals) == m):
-        raise ValueError(f"find_correspondences: {m} cameras, {len(positions)} positions, {len(masks)} masks, "
-                         f"{len(normals)} normals")
+        raise ValueError(
+            f"find_correspondences: {m} cameras, {len(positions)} positions, {len(masks)} masks, {len(normals)} normals"
+        )
     masks = [np.asarray(mk, dtype=bool) for mk in masks]
     empty = Correspondences(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
     if m < 2 or max_pairs <= 0 or neighbours <= 0:
@@ -158,8 +163,14 @@ def find_correspondences(cameras, positions, masks, normals, max_pairs=2_000_000
         for b in nbrs[a]:
             sel, xy = _visible_in(cameras[b], views[b], p, n_a, depth_tol, min_normal_cos)
             if sel is not None:
-                out.append((np.full(sel.size, a, dtype=np.int32), pix[sel].astype(np.int64),
-                            np.full(sel.size, b, dtype=np.int32), xy))
+                out.append(
+                    (
+                        np.full(sel.size, a, dtype=np.int32),
+                        pix[sel].astype(np.int64),
+                        np.full(sel.size, b, dtype=np.int32),
+                        xy,
+                    )
+                )
     return _trimmed(out, max_pairs, rng) if out else empty
 
 

@@ -17,6 +17,7 @@ it works triangle by triangle like a z-buffer rasteriser:
 Both faces of a triangle are hit (as in Cycles), and no clipping distance
 applies: a photo sees everything in front of the lens.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -178,8 +179,7 @@ def _row_spans(camera, vc, z_near):
     c0, c1, r0, nr = _pixel_boxes(camera, vc, z_near)
     tris = np.flatnonzero(nr > 0)
     pt = np.repeat(tris, nr[tris])
-    prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris],
-                                                                            nr[tris]))
+    prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris], nr[tris]))
     lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
     front = np.all(vc[pt, :, 2] >= z_near, axis=1)
     if front.any():
@@ -276,7 +276,7 @@ def _edge_test(camera, n_corner, cnt, r, c):
     s = wts.sum(axis=1)
     sign = np.sign(s)
     tol = _EDGE_EPS * np.abs(s)
-    hit = (s != 0)
+    hit = s != 0
     for k in range(3):
         hit &= wts[:, k] * sign >= -tol
     return wts, s, hit

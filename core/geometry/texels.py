@@ -12,6 +12,7 @@ Internally, rasterisation works in continuous texel coordinates ``(x, y) =
 (col, row)``, where texel centres sit on integers and texel ``(r, c)`` covers
 ``[c - 0.5, c + 0.5] x [r - 0.5, r + 0.5]``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,8 +21,16 @@ import numpy as np
 
 from .bilinear import masked_corners
 
-
-__all__ = ["TextureLayout", "texel_of_uv", "uv_of_texel", "texel_index", "bilinear_texels", "texture_layout", "uv_stretched", "STRETCH_FACTOR"]
+__all__ = [
+    "TextureLayout",
+    "texel_of_uv",
+    "uv_of_texel",
+    "texel_index",
+    "bilinear_texels",
+    "texture_layout",
+    "uv_stretched",
+    "STRETCH_FACTOR",
+]
 
 
 def _fail(msg):
@@ -188,8 +197,10 @@ def _check_mesh(tri_uv, tri_pos, tri_vert):
     for name, a in (("tri_uv", tri_uv), ("tri_pos", tri_pos)):
         bad = ~np.isfinite(a).reshape(t, -1).all(axis=1)
         if bad.any():
-            raise ValueError(f"texture_layout: {name} of triangle {int(np.flatnonzero(bad)[0])} "
-                             f"is NaN or infinite ({int(bad.sum())} triangles)")
+            raise ValueError(
+                f"texture_layout: {name} of triangle {int(np.flatnonzero(bad)[0])} "
+                f"is NaN or infinite ({int(bad.sum())} triangles)"
+            )
     if tri_vert.min() < 0:
         raise ValueError("texture_layout: tri_vert holds negative vertex indices")
     return tri_uv, tri_pos, tri_vert.astype(np.int64)
@@ -207,9 +218,9 @@ def _barycentric_planes(q):
     a, b, c : (T, 3) arrays with ``lambda_i(x, y) = a_i x + b_i y + c_i``.
     ok : (T,) bool, False for triangles of (nearly) zero UV area.
     """
-    qj = np.roll(q, -1, axis=1)          # vertex i+1
-    qk = np.roll(q, -2, axis=1)          # vertex i+2
-    d = qk - qj                          # edge opposite vertex i
+    qj = np.roll(q, -1, axis=1)  # vertex i+1
+    qk = np.roll(q, -2, axis=1)  # vertex i+2
+    d = qk - qj  # edge opposite vertex i
     den = d[:, 0, 0] * (q[:, 0, 1] - qj[:, 0, 1]) - d[:, 0, 1] * (q[:, 0, 0] - qj[:, 0, 0])
     # 1e-9 texel^2: such triangles cover no texel in any meaningful way.
     ok = np.abs(den) > 1e-9
@@ -299,8 +310,7 @@ def _rasterise(q, tri_pos, n, margin, low_priority=None):
         xf = x.astype(np.float64)
         yf = y.astype(np.float64)
         lam = [a[t, i] * xf + b[t, i] * yf + c[t, i] for i in range(3)]
-        keep = ((lam[0] + slack[t, 0] >= 0) & (lam[1] + slack[t, 1] >= 0)
-                & (lam[2] + slack[t, 2] >= 0))
+        keep = (lam[0] + slack[t, 0] >= 0) & (lam[1] + slack[t, 1] >= 0) & (lam[2] + slack[t, 2] >= 0)
         t, x, y = t[keep], x[keep], y[keep]
         lam = np.stack([li[keep] for li in lam], axis=1)
         # Signed distance (texels) to the triangle's edge lines: >= 0 inside.
@@ -328,7 +338,7 @@ def _seam_pairs(q, tri_vert, inside, n):
     """Texel pairs across UV seams (see :func:`texture_layout`)."""
     ea = np.array([0, 1, 2])
     eb = np.array([1, 2, 0])
-    ec = np.array([2, 0, 1])                       # vertex opposite each edge
+    ec = np.array([2, 0, 1])  # vertex opposite each edge
     va = tri_vert[:, ea].ravel()
     vb = tri_vert[:, eb].ravel()
     swap = va > vb
@@ -336,7 +346,7 @@ def _seam_pairs(q, tri_vert, inside, n):
     hi_v = np.where(swap, va, vb)
     qa = q[:, ea].reshape(-1, 2)
     qb = q[:, eb].reshape(-1, 2)
-    q_lo = np.where(swap[:, None], qb, qa)         # UV at the lower vertex index
+    q_lo = np.where(swap[:, None], qb, qa)  # UV at the lower vertex index
     q_hi = np.where(swap[:, None], qa, qb)
     q_opp = q[:, ec].reshape(-1, 2)
     key = lo_v * (int(tri_vert.max()) + 1) + hi_v
@@ -349,7 +359,7 @@ def _seam_pairs(q, tri_vert, inside, n):
     e1 = order[two]
     e2 = order[two + 1]
     gap = np.maximum(np.abs(q_lo[e1] - q_lo[e2]).max(axis=1), np.abs(q_hi[e1] - q_hi[e2]).max(axis=1))
-    seam = gap > 1e-3                               # in texels
+    seam = gap > 1e-3  # in texels
     e1, e2 = e1[seam], e2[seam]
     if e1.size == 0:
         return np.zeros((0, 2), dtype=np.intp)
@@ -430,13 +440,14 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
         raise ValueError(f"texture_layout: margin must be >= 0, got {margin}")
     tri_uv, tri_pos, tri_vert = _check_mesh(tri_uv, tri_pos, tri_vert)
     row, col = texel_of_uv(tri_uv, n)
-    q = np.stack([col, row], axis=-1)              # (T, 3, 2) as (x, y)
+    q = np.stack([col, row], axis=-1)  # (T, 3, 2) as (x, y)
     stretched = uv_stretched(tri_uv, tri_pos)
     pos = _rasterise(q, tri_pos, n, margin, low_priority=stretched)
     inside = np.all(np.isfinite(pos), axis=2)
     if not inside.any():
-        raise ValueError(f"texture_layout: no triangle covers any texel of the {n}x{n} texture "
-                         "(are the UVs inside [0, 1]?)")
+        raise ValueError(
+            f"texture_layout: no triangle covers any texel of the {n}x{n} texture (are the UVs inside [0, 1]?)"
+        )
     # A stretched triangle's edges are no seam: its UVs span a gap, not a cut.
     pairs = _seam_pairs(q[~stretched], tri_vert[~stretched], inside, n)
     return TextureLayout(texel_pos=pos, seam_pairs=pairs)

@@ -24,14 +24,15 @@ grid of points (surface position and normal averaged from the views' bakes) and
 interpolated bilinearly in UV to each pixel, as a correction ``T - nu`` added to
 the pixel's own ``nu(n)``.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
+from ..solve.sh import sh_basis, sh_degree
 from .camera import Camera
 from .raycast import raycast
 from .texels import bilinear_texels, texel_index
-from ..solve.sh import sh_basis, sh_degree
 
 __all__ = ["sphere_directions", "open_factor", "visibility", "occlusion_transfer", "pixel_transfer"]
 
@@ -49,7 +50,10 @@ def open_factor(k: int) -> np.ndarray:
 
 
 def sphere_directions(k: int) -> np.ndarray:
-    """``k`` unit directions spread evenly over the sphere (a Fibonacci lattice), ``(k, 3)``; each stands for 4 pi / k sr."""
+    """``k`` unit directions spread evenly over the sphere (a Fibonacci lattice), ``(k, 3)``.
+
+    Each stands for 4 pi / k sr.
+    """
     i = np.arange(k) + 0.5
     z = 1.0 - 2.0 * i / k
     phi = i * np.pi * (3.0 - np.sqrt(5.0))
@@ -65,7 +69,7 @@ def _shadow_camera(direction, centre, radius, resolution):
     x = np.cross(helper, w)
     x /= np.linalg.norm(x)
     y = np.cross(-w, x)
-    R = np.stack([x, y, -w])                  # rows: camera axes in world coordinates; z looks along -w
+    R = np.stack([x, y, -w])  # rows: camera axes in world coordinates; z looks along -w
     dist = 1e4 * radius
     C = centre + dist * w
     f = 0.5 * resolution * dist / (radius * 1.02)
@@ -74,8 +78,7 @@ def _shadow_camera(direction, centre, radius, resolution):
     return Camera(K=K, R=R, t=-R @ C, width=resolution, height=resolution), 2.04 * radius / resolution
 
 
-def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0,
-               bias: float = 0.5):
+def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5):
     """Whether each point sees out of the mesh in each direction, ``(P, K)`` bool.
 
     Parameters
@@ -121,8 +124,9 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
     return out
 
 
-def occlusion_transfer(points, normals, tri_pos, n_directions: int = 64, resolution: int = 256,
-                       bounce: float = 0.0, order: int = 2):
+def occlusion_transfer(
+    points, normals, tri_pos, n_directions: int = 64, resolution: int = 256, bounce: float = 0.0, order: int = 2
+):
     """``T(x) - nu(n)`` at each point: the blocked directions' share of the transfer, ``(P, 9)`` float32.
 
     Zero for a point that sees the whole hemisphere around its normal; see
@@ -137,17 +141,27 @@ def occlusion_transfer(points, normals, tri_pos, n_directions: int = 64, resolut
     dirs = sphere_directions(n_directions)
     nrm = np.asarray(normals, np.float64)
     vis = visibility(points, nrm, tri_pos, dirs, resolution)
-    cos = np.maximum(nrm @ dirs.T, 0.0)                       # (P, K)
+    cos = np.maximum(nrm @ dirs.T, 0.0)  # (P, K)
     blocked = cos * (~vis)
-    basis = sh_basis(dirs, np.float64, order)                 # (K, (order + 1)^2)
+    basis = sh_basis(dirs, np.float64, order)  # (K, (order + 1)^2)
     occ = -(blocked @ basis) * (4 * np.pi / n_directions) / _NORM_BAND[sh_degree(basis.shape[1])]
     occ[:, 3] *= 1.0 - bounce
     return occ.astype(np.float32)
 
 
-def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, views_weight=None,
-                   grid: int = 128, n_directions: int = 64, resolution: int = 256, bounce: float = 0.0,
-                   order: int = 2):
+def pixel_transfer(
+    tri_pos,
+    views_uv,
+    views_mask,
+    views_normal,
+    views_position,
+    views_weight=None,
+    grid: int = 128,
+    n_directions: int = 64,
+    resolution: int = 256,
+    bounce: float = 0.0,
+    order: int = 2,
+):
     """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
 
     The occlusion (:func:`occlusion_transfer`) is computed once per cell of a
@@ -177,8 +191,9 @@ def pixel_transfer(tri_pos, views_uv, views_mask, views_normal, views_position, 
         cell = texel_index(uv[mask], grid)
         w = np.ones(cell.size) if views_weight is None else views_weight[i][mask].astype(np.float64) + 1e-3
         ok = cell >= 0
-        vals = np.concatenate([w[:, None], w[:, None] * pos[mask].astype(np.float64),
-                               w[:, None] * nrm[mask].astype(np.float64)], axis=1)[ok]
+        vals = np.concatenate(
+            [w[:, None], w[:, None] * pos[mask].astype(np.float64), w[:, None] * nrm[mask].astype(np.float64)], axis=1
+        )[ok]
         for j in range(7):
             acc[:, j] += np.bincount(cell[ok], weights=vals[:, j], minlength=n_cells)
     used = acc[:, 0] > 0

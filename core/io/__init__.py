@@ -1,12 +1,12 @@
-"""Files in and out: EXR images, problem bundles, photo decoding, safe file names, atomic writes, JSON values.
-"""
+"""Files in and out: EXR images, problem bundles, photo decoding, safe file names, atomic writes, JSON values."""
+
 from .atomic import atomic_path
+from .bundle import FORMAT, VERSION, load_bundle, save_bundle
+from .exr import exr_parts, read_exr, write_exr
 from .files import read_magic
 from .jsonio import json_value
 from .names import safe_name, unique_names
-from .exr import read_exr, write_exr, exr_parts
-from .bundle import FORMAT, VERSION, save_bundle, load_bundle
-from .photos import srgb_to_linear, linear_to_srgb, downscale
+from .photos import downscale, linear_to_srgb, srgb_to_linear
 
 __all__ = [
     "atomic_path",

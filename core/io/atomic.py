@@ -3,6 +3,7 @@
 A failure (or Ctrl-C) while writing never leaves a partial file, and never
 changes an existing file at the target path.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -62,6 +62,7 @@ Values outside the masks are not used (they may be NaN). Validation is the
 :class:`~core.solve.problem.Problem` constructor's; :func:`load_bundle` adds the
 file name to its messages.
 """
+
 from __future__ import annotations
 
 import os
@@ -69,9 +70,9 @@ import zipfile
 
 import numpy as np
 
+from ..solve.problem import Correspondences, Problem, TextureLayout
 from .atomic import atomic_path
 from .files import read_magic
-from ..solve.problem import Correspondences, Problem, TextureLayout
 
 __all__ = ["FORMAT", "VERSION", "save_bundle", "load_bundle"]
 
@@ -174,22 +175,23 @@ class _Keys:
     def index(self, key):
         a = self.numeric(key)
         if not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(f"bundle {self.path}: key {key!r} holds indices and must have an "
-                             f"integer dtype, got {a.dtype}")
+            raise ValueError(
+                f"bundle {self.path}: key {key!r} holds indices and must have an integer dtype, got {a.dtype}"
+            )
         return a
 
     def mask(self, key):
         a = self.numeric(key)
         if not (a.dtype == bool or np.issubdtype(a.dtype, np.integer)):
-            raise ValueError(f"bundle {self.path}: key {key!r} is a mask and must be bool or "
-                             f"integer, got {a.dtype}")
+            raise ValueError(f"bundle {self.path}: key {key!r} is a mask and must be bool or integer, got {a.dtype}")
         return a
 
     def integer(self, key):
         a = self.numeric(key)
         if a.ndim != 0 or not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(f"bundle {self.path}: key {key!r} must be an integer scalar, got "
-                             f"{a.dtype} of shape {a.shape}")
+            raise ValueError(
+                f"bundle {self.path}: key {key!r} must be an integer scalar, got {a.dtype} of shape {a.shape}"
+            )
         return int(a)
 
 
@@ -215,14 +217,17 @@ def _problem_from(path, z: _Keys) -> Problem:
     for what in _PER_VIEW_OPTIONAL:
         have = [f"{what}_{i}" in z for i in range(m)]
         if any(have) and not all(have):
-            raise ValueError(f"bundle {path}: missing key {f'{what}_{have.index(False)}'!r} "
-                             f"({what} must be given for every view or for none)")
+            raise ValueError(
+                f"bundle {path}: missing key {f'{what}_{have.index(False)}'!r} "
+                f"({what} must be given for every view or for none)"
+            )
         optional[what] = [z.numeric(f"{what}_{i}") for i in range(m)] if all(have) else None
     corr = None
     if any(f"corr_{k}" in z for k in _CORR):
         weight = z.numeric("corr_weight") if "corr_weight" in z else None
-        corr = Correspondences(z.index("corr_view_a"), z.index("corr_pixel_a"),
-                               z.index("corr_view_b"), z.numeric("corr_xy_b"), weight)
+        corr = Correspondences(
+            z.index("corr_view_a"), z.index("corr_pixel_a"), z.index("corr_view_b"), z.numeric("corr_xy_b"), weight
+        )
     texture = None
     if "texel_pos" in z:
         seams = z.index("seam_pairs") if "seam_pairs" in z else None

@@ -11,6 +11,7 @@ repeat the part name (``"ViewLayer.Combined.R"``). :func:`read_exr` reads one
 part: by default the first part that has R, G and B channels, else part 0.
 Channel names are returned without that ``"<part name>."`` prefix.
 """
+
 from __future__ import annotations
 
 import os
@@ -39,7 +40,7 @@ def _open(path, header_only=False):
 
 def _short_name(channel, part_name):
     prefix = part_name + "." if part_name else ""
-    return channel[len(prefix):] if prefix and channel.startswith(prefix) else channel
+    return channel[len(prefix) :] if prefix and channel.startswith(prefix) else channel
 
 
 def _ordered(names):
@@ -96,9 +97,7 @@ def read_exr(path, part=None):
     parts = f.parts
     names = [p.name() for p in parts]
     if part is None:
-        chosen = next((p for p in parts
-                       if {"R", "G", "B"} <= {_short_name(n, p.name()) for n in p.channels}),
-                      parts[0])
+        chosen = next((p for p in parts if {"R", "G", "B"} <= {_short_name(n, p.name()) for n in p.channels}), parts[0])
     elif isinstance(part, str):
         if part not in names:
             raise ValueError(f"{path}: no part named {part!r} (parts: {names})")
@@ -119,8 +118,9 @@ def read_exr(path, part=None):
         if px.ndim != 2:
             raise ValueError(f"{path}: channel {n!r} has pixel shape {px.shape}, expected 2-D")
         if planes and px.shape != planes[0].shape:
-            raise ValueError(f"{path}: channel {n!r} is subsampled ({px.shape} vs {planes[0].shape}), "
-                             "which is not supported")
+            raise ValueError(
+                f"{path}: channel {n!r} is subsampled ({px.shape} vs {planes[0].shape}), which is not supported"
+            )
         planes.append(px.astype(np.float32))
     return np.stack(planes, axis=2), order
 
@@ -150,8 +150,7 @@ def write_exr(path, array, channels=None, half=False):
         a = a[:, :, None]
     if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0:
         raise ValueError(f"write_exr {path}: array must be (H, W) or (H, W, C) with H, W > 0, got {a.shape}")
-    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
-            or a.dtype == bool):
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer) or a.dtype == bool):
         raise ValueError(f"write_exr {path}: array dtype {a.dtype} is not numeric")
     c = a.shape[2]
     if channels is None:

@@ -1,4 +1,5 @@
 """Opening files users name: one clear error for a missing path, a folder, or the wrong kind of file."""
+
 from __future__ import annotations
 
 import os

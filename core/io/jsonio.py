@@ -1,4 +1,5 @@
 """JSON output: plain values from NumPy ones, non-finite floats as null."""
+
 from __future__ import annotations
 
 import math

@@ -1,4 +1,5 @@
 """Safe, unique file-name stems from names users typed (objects, cameras, views)."""
+
 from __future__ import annotations
 
 import re

@@ -48,6 +48,7 @@ Guarantees of :func:`write_outputs`:
 :func:`prepare_outputs` runs the checks (and proves the folder writable)
 before the long part of a run; :func:`write_outputs` runs them again.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -69,8 +70,22 @@ from .exr import write_exr
 from .jsonio import json_value
 from .names import unique_names
 
-__all__ = ["LIGHTING", "REPORT", "NORMALS", "Plan", "view_files", "channel_names", "lighting_json", "rgba",
-           "own_files", "plan_outputs", "check_inputs", "check_writable", "prepare_outputs", "write_outputs"]
+__all__ = [
+    "LIGHTING",
+    "REPORT",
+    "NORMALS",
+    "Plan",
+    "view_files",
+    "channel_names",
+    "lighting_json",
+    "rgba",
+    "own_files",
+    "plan_outputs",
+    "check_inputs",
+    "check_writable",
+    "prepare_outputs",
+    "write_outputs",
+]
 
 LIGHTING = "lighting.json"
 REPORT = "report.json"
@@ -117,8 +132,10 @@ def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None =
     out = {"sh_basis": list(SH_BASIS_NAMES), "channels": channel_names(n_channels), "normals": NORMALS}
     if method is not None:
         out["method"] = method
-    out["views"] = [{"name": str(name), "file": f, "sh": None if sigma is None else sigma[i].tolist()}
-                    for i, (name, f) in enumerate(zip(names, files))]
+    out["views"] = [
+        {"name": str(name), "file": f, "sh": None if sigma is None else sigma[i].tolist()}
+        for i, (name, f) in enumerate(zip(names, files))
+    ]
     return out
 
 
@@ -143,6 +160,7 @@ def rgba(values, alpha, zero_outside: bool = True) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- checks
+
 
 @dataclass
 class Plan:
@@ -181,8 +199,13 @@ def own_files(out_dir) -> set:
     if not isinstance(files, list) or REPORT not in files:
         return set()
     root = os.path.realpath(out_dir)
-    return {f for f in files if isinstance(f, str) and _OWN_NAME.match(f)
-            and os.path.dirname(os.path.realpath(_abs(out_dir, f))) in (root, os.path.join(root, "views"))}
+    return {
+        f
+        for f in files
+        if isinstance(f, str)
+        and _OWN_NAME.match(f)
+        and os.path.dirname(os.path.realpath(_abs(out_dir, f))) in (root, os.path.join(root, "views"))
+    }
 
 
 def _is_dir(path):
@@ -224,11 +247,16 @@ def _plan(out_dir, files, overwrite):
         if _is_dir(path):
             raise DelightError(f"cannot write {path}: a folder of that name exists; choose another output folder")
         if rel not in own and not overwrite:
-            foreign.append(DelightError(f"{path} already exists and was not written by Delight; "
-                                        "choose another output folder or pass --overwrite"))
+            foreign.append(
+                DelightError(
+                    f"{path} already exists and was not written by Delight; "
+                    "choose another output folder or pass --overwrite"
+                )
+            )
         plan.replace.append(rel)
-    plan.stale = sorted(f for f in own - set(files)
-                        if os.path.lexists(_abs(out_dir, f)) and not _is_dir(_abs(out_dir, f)))
+    plan.stale = sorted(
+        f for f in own - set(files) if os.path.lexists(_abs(out_dir, f)) and not _is_dir(_abs(out_dir, f))
+    )
     return plan, foreign
 
 
@@ -308,8 +336,7 @@ def check_writable(out_dir) -> None:
     out_dir = os.path.abspath(os.fspath(out_dir))
     base = _nearest_existing(out_dir)
     if not os.path.isdir(base):
-        raise DelightError(f"cannot write to {out_dir}: {base} is a file, not a folder; "
-                           "choose another output folder")
+        raise DelightError(f"cannot write to {out_dir}: {base} is a file, not a folder; choose another output folder")
     places = [base]
     if base == out_dir and os.path.isdir(os.path.join(out_dir, "views")):
         places.append(os.path.join(out_dir, "views"))
@@ -336,6 +363,7 @@ def prepare_outputs(out_dir, files, overwrite: bool = False, inputs=()) -> Plan:
 
 
 # ---------------------------------------------------------------- writing
+
 
 def _write_json(path, obj):
     with open(path, "w", encoding="utf-8") as fh:
@@ -379,8 +407,10 @@ def _ctrl_c_held():
     bpy module); a host's own handler (Blender's) is left alone.
     """
     held = []
-    active = (threading.current_thread() is threading.main_thread()
-              and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    active = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    )
     if active:
         old = signal.signal(signal.SIGINT, lambda *_: held.append(True))
     try:
@@ -423,8 +453,10 @@ def _swap(plan, new_dir, old_dir, interrupted):
             for rel in reversed(moved):
                 os.replace(_abs(old_dir, rel), _abs(out, rel))
         except OSError as undo:
-            raise _RollbackFailed(f"writing into {out} failed ({exc}) and the earlier outputs could not be put "
-                                  f"back ({undo}); they are in {old_dir}") from exc
+            raise _RollbackFailed(
+                f"writing into {out} failed ({exc}) and the earlier outputs could not be put "
+                f"back ({undo}); they are in {old_dir}"
+            ) from exc
         _remove_empty(made)
         raise
 
@@ -497,7 +529,7 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
             _swap(plan, new_dir, old_dir, lambda: bool(held))
         done = True
     except _RollbackFailed:
-        staging = None   # it holds the earlier outputs now
+        staging = None  # it holds the earlier outputs now
         raise
     except OSError as exc:
         raise _cannot_write(out, exc) from None

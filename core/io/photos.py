@@ -1,4 +1,5 @@
 """Photo pixels: the sRGB curve both ways, and area-averaged downscaling."""
+
 from __future__ import annotations
 
 import numpy as np

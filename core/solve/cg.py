@@ -1,4 +1,5 @@
 """Preconditioned conjugate gradients, the one CG loop of the solver and of the texture fill."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -34,6 +34,7 @@ land on the same texel *are* the correspondences. Two data models:
 In both, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).
 """
+
 from __future__ import annotations
 
 import warnings
@@ -42,10 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .problem import Problem
 from ..geometry.bilinear import masked_corners
-from .sh import sh_basis, sh_products
 from ..geometry.texels import bilinear_texels
+from .problem import Problem
+from .sh import sh_basis, sh_products
 
 __all__ = ["Discretization", "image_domain", "texture_domain"]
 
@@ -60,21 +61,21 @@ class Discretization:
 
     domain: str
     n_unknowns: int
-    pixel_offsets: np.ndarray      # (m+1,)
-    values: np.ndarray             # (P, C) float32 pixel values I
-    nu: np.ndarray                 # (P, 9) float32 SH basis of the pixel normals
-    nu_products: np.ndarray        # (P, 45) float32
+    pixel_offsets: np.ndarray  # (m+1,)
+    values: np.ndarray  # (P, C) float32 pixel values I
+    nu: np.ndarray  # (P, 9) float32 SH basis of the pixel normals
+    nu_products: np.ndarray  # (P, 45) float32
     obs_unknown: np.ndarray | None  # (O,) intp; None when obs_matrix mixes unknowns
-    obs_pixel: np.ndarray          # (O,) intp, sorted
-    obs_weight: np.ndarray         # (O,) float32 beta
-    B: sp.csr_matrix               # (E, n) float32
-    BT: sp.csr_matrix              # (n, E) float32
-    B2T: sp.csr_matrix             # (n, E) float32, squares of B's entries, transposed
-    n_tv: int                      # rows [0, n_tv) are TV, the rest correspondences
-    base: np.ndarray               # (E,) float32 base row weights
-    rho0: np.ndarray               # (n, C) float32 starting reflectance
-    obs_view: np.ndarray | None = None      # (O,) intp view of each observation
-    texel_index: np.ndarray | None = None   # texture domain: flat texel of each unknown
+    obs_pixel: np.ndarray  # (O,) intp, sorted
+    obs_weight: np.ndarray  # (O,) float32 beta
+    B: sp.csr_matrix  # (E, n) float32
+    BT: sp.csr_matrix  # (n, E) float32
+    B2T: sp.csr_matrix  # (n, E) float32, squares of B's entries, transposed
+    n_tv: int  # rows [0, n_tv) are TV, the rest correspondences
+    base: np.ndarray  # (E,) float32 base row weights
+    rho0: np.ndarray  # (n, C) float32 starting reflectance
+    obs_view: np.ndarray | None = None  # (O,) intp view of each observation
+    texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
 
     @property
@@ -109,15 +110,16 @@ class Discretization:
             A = self.obs_matrix
             if A is None:
                 o = self.obs_unknown.size
-                A = sp.csr_matrix((np.ones(o, np.float32), self.obs_unknown, np.arange(o + 1)),
-                                  shape=(o, self.n_unknowns))
+                A = sp.csr_matrix(
+                    (np.ones(o, np.float32), self.obs_unknown, np.arange(o + 1)), shape=(o, self.n_unknowns)
+                )
             self._matrices = (A, A.T.tocsr(), A.multiply(A).T.tocsr())
         return self._matrices
 
     def row_scale(self, lam: float, mu: float) -> np.ndarray:
         s = self.base.copy()
-        s[:self.n_tv] *= lam
-        s[self.n_tv:] *= mu
+        s[: self.n_tv] *= lam
+        s[self.n_tv :] *= mu
         return s
 
 
@@ -148,9 +150,11 @@ def _assemble(groups, n_unknowns):
     """B from groups of difference rows (in order), as CSR built directly, and its transposes."""
     widths = np.concatenate([np.full(c.shape[0], c.shape[1], np.int64) for c, _ in groups])
     indptr = np.concatenate([[0], np.cumsum(widths)])
-    B = sp.csr_matrix((np.concatenate([v.ravel() for _, v in groups]),
-                       np.concatenate([c.ravel() for c, _ in groups]), indptr),
-                      shape=(widths.size, n_unknowns), dtype=np.float32)
+    B = sp.csr_matrix(
+        (np.concatenate([v.ravel() for _, v in groups]), np.concatenate([c.ravel() for c, _ in groups]), indptr),
+        shape=(widths.size, n_unknowns),
+        dtype=np.float32,
+    )
     B.sum_duplicates()
     B.eliminate_zeros()
     BT = B.T.tocsr()
@@ -204,9 +208,22 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
     B, BT, B2T = _assemble(row_groups, n)
     obs = np.arange(n, dtype=np.intp)
     return Discretization(
-        domain="image", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
-        obs_unknown=obs, obs_pixel=obs, obs_weight=np.ones(n, dtype=np.float32),
-        B=B, BT=BT, B2T=B2T, n_tv=n_tv, base=np.concatenate(base), rho0=values.copy())
+        domain="image",
+        n_unknowns=n,
+        pixel_offsets=offsets,
+        values=values,
+        nu=nu,
+        nu_products=prods,
+        obs_unknown=obs,
+        obs_pixel=obs,
+        obs_weight=np.ones(n, dtype=np.float32),
+        B=B,
+        BT=BT,
+        B2T=B2T,
+        n_tv=n_tv,
+        base=np.concatenate(base),
+        rho0=values.copy(),
+    )
 
 
 def _correspondence_rows(problem: Problem, lut: list, n: int, normalise: bool):
@@ -274,14 +291,29 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         obs_unknown = None
     w_obs = w_obs.astype(np.float32)
     d = Discretization(
-        domain="texture", n_unknowns=n, pixel_offsets=offsets, values=values, nu=nu, nu_products=prods,
-        obs_unknown=obs_unknown, obs_pixel=pix_obs, obs_weight=w_obs,
-        B=B, BT=BT, B2T=B2T, n_tv=B.shape[0], base=base, rho0=np.zeros((n, values.shape[1]), np.float32),
-        texel_index=texels, obs_matrix=obs_matrix)
+        domain="texture",
+        n_unknowns=n,
+        pixel_offsets=offsets,
+        values=values,
+        nu=nu,
+        nu_products=prods,
+        obs_unknown=obs_unknown,
+        obs_pixel=pix_obs,
+        obs_weight=w_obs,
+        B=B,
+        BT=BT,
+        B2T=B2T,
+        n_tv=B.shape[0],
+        base=base,
+        rho0=np.zeros((n, values.shape[1]), np.float32),
+        texel_index=texels,
+        obs_matrix=obs_matrix,
+    )
     # Start from the weighted mean of the observations that see each texel.
     wsum = d.scatter(w_obs.astype(np.float64))
-    d.rho0 = np.stack([d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum
-                       for ch in range(values.shape[1])], axis=1).astype(np.float32)
+    d.rho0 = np.stack(
+        [d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum for ch in range(values.shape[1])], axis=1
+    ).astype(np.float32)
     return d
 
 
@@ -342,8 +374,7 @@ def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
     pixels, start = np.unique(pix_obs, return_index=True)
     w_pix = np.add.reduceat(w_obs, start)
     rows = np.repeat(np.arange(pixels.size), np.diff(np.append(start, pix_obs.size)))
-    obs_matrix = sp.csr_matrix(((w_obs / w_pix[rows]).astype(np.float32), (rows, obs_unknown)),
-                               shape=(pixels.size, n))
+    obs_matrix = sp.csr_matrix(((w_obs / w_pix[rows]).astype(np.float32), (rows, obs_unknown)), shape=(pixels.size, n))
     return obs_matrix, pixels, w_pix
 
 
@@ -357,8 +388,7 @@ def _texel_side_lengths(texel_pos: np.ndarray):
         pad_before[axis] = (1, 0)
         pad_after = [(0, 0), (0, 0)]
         pad_after[axis] = (0, 1)
-        both = np.stack([np.pad(d, pad_before, constant_values=np.nan),
-                         np.pad(d, pad_after, constant_values=np.nan)])
+        both = np.stack([np.pad(d, pad_before, constant_values=np.nan), np.pad(d, pad_after, constant_values=np.nan)])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN texels stay NaN
             out.append(np.nanmean(both, axis=0))

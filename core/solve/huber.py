@@ -1,4 +1,5 @@
 """The Huber loss phi_delta (eq. def_phi_delta) and its quadratic majorant psi_delta (eq. psi_delta)."""
+
 from __future__ import annotations
 
 import numpy as np

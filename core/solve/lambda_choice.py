@@ -15,20 +15,28 @@ the normal's SH basis explains, without the constant (an exposure change).
 threshold that separates the fixed-light scenes from those with a light per
 shot (the values are in docs/measurements.md).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-from .sh import sh_basis
 from ..geometry.texels import texel_index
+from .sh import sh_basis
 
-__all__ = ["lighting_variation", "choose_lambda", "auto_lambda", "describe_lambda", "VARYING_THRESHOLD",
-           "LAMBDA_FIXED", "LAMBDA_VARYING"]
+__all__ = [
+    "lighting_variation",
+    "choose_lambda",
+    "auto_lambda",
+    "describe_lambda",
+    "VARYING_THRESHOLD",
+    "LAMBDA_FIXED",
+    "LAMBDA_VARYING",
+]
 
-VARYING_THRESHOLD = 0.2   # above every fixed-light scene measured, below every moving-light one
+VARYING_THRESHOLD = 0.2  # above every fixed-light scene measured, below every moving-light one
 LAMBDA_FIXED = 5.0
 LAMBDA_VARYING = 0.5
-_MIN_SHARED = 100         # cells seen by two views or more, below which we cannot tell
+_MIN_SHARED = 100  # cells seen by two views or more, below which we cannot tell
 
 
 def lighting_variation(images, masks, normals, uvs, size: int = 128) -> float | None:
@@ -77,8 +85,9 @@ def lighting_variation(images, masks, normals, uvs, size: int = 128) -> float | 
         return None
     w_obs = n_obs.astype(np.float64)
     dev = _two_way_residual(mean, c, v, w_obs, m)
-    cell_normal = np.stack([np.bincount(cell, weights=normal[:, k], minlength=size * size)[cell_ids]
-                            for k in range(3)], axis=1)
+    cell_normal = np.stack(
+        [np.bincount(cell, weights=normal[:, k], minlength=size * size)[cell_ids] for k in range(3)], axis=1
+    )
     cell_normal /= np.maximum(np.linalg.norm(cell_normal, axis=1, keepdims=True), 1e-12)
     return _explained_rms(sh_basis(cell_normal[c], np.float64), dev, v, w_obs, m)
 
@@ -137,8 +146,9 @@ def choose_lambda(variation: float | None) -> float:
 
 def auto_lambda(problem) -> tuple:
     """``(lambda, variation)`` for a :class:`core.solve.problem.Problem`; variation is None without UVs or overlap."""
-    variation = (None if problem.uv is None else
-                 lighting_variation(problem.images, problem.masks, problem.normals, problem.uv))
+    variation = (
+        None if problem.uv is None else lighting_variation(problem.images, problem.masks, problem.normals, problem.uv)
+    )
     return choose_lambda(variation), variation
 
 

@@ -20,6 +20,7 @@ here, both used through :class:`core.solve.solver.SolverParams`:
 ceiling of the benchmarks) and :func:`shading_error` compares two lightings by
 the shading they give over the observations.
 """
+
 from __future__ import annotations
 
 import time
@@ -36,14 +37,25 @@ from .sh import unpack_products
 #: TV weight of the albedo stage, chosen by leave-one-scene-out over the fixtures (docs/measurements.md).
 ALBEDO_LAMBDA = 1.0
 
-__all__ = ["ALBEDO_LAMBDA", "choose_lighting", "Coupling", "shared_lighting_step", "split_gains", "solve_albedo", "solve_two_stage", "fit_lighting",
-           "shading_error", "division_start"]
-
+__all__ = [
+    "ALBEDO_LAMBDA",
+    "choose_lighting",
+    "Coupling",
+    "shared_lighting_step",
+    "split_gains",
+    "solve_albedo",
+    "solve_two_stage",
+    "fit_lighting",
+    "shading_error",
+    "division_start",
+]
 
 
 def _free(k):
     """Coefficients of sigma free in the sigma-step; the constant term (index 3) is pinned to fix the scale."""
     return np.delete(np.arange(k), 3)
+
+
 # Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
 # lighting says "dark", dividing by it blows the albedo up.
 SHADING_FLOOR = 0.2
@@ -57,6 +69,7 @@ def choose_lighting(variation: float | None) -> str:
     between the photos: free per view (``"per_view"``).
     """
     from .lambda_choice import VARYING_THRESHOLD
+
     return "per_view" if variation is not None and variation > VARYING_THRESHOLD else "coupled"
 
 
@@ -73,8 +86,9 @@ def split_gains(sigma_views: np.ndarray):
     return sigma, g
 
 
-def shared_lighting_step(Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray, rounds: int = 4,
-                         pin_constant: bool = True) -> np.ndarray:
+def shared_lighting_step(
+    Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray, rounds: int = 4, pin_constant: bool = True
+) -> np.ndarray:
     """The sigma-step of one channel for a lighting shared by the views, up to a gain per view.
 
     Minimises ``sum_v (g_v^2 s^T M_v s - 2 g_v s^T b_v)`` over the world
@@ -147,8 +161,7 @@ class Coupling:
     def _fit_world(self, sigma, s, g, rounds=3):
         G = self.G
         for _ in range(rounds):
-            s = np.linalg.lstsq(np.einsum("v,vij->ij", g * g, G), np.einsum("v,vij,vj->i", g, G, sigma),
-                                rcond=1e-10)[0]
+            s = np.linalg.lstsq(np.einsum("v,vij->ij", g * g, G), np.einsum("v,vij,vj->i", g, G, sigma), rcond=1e-10)[0]
             q = np.einsum("i,vij,j->v", s, G, s)
             p = np.einsum("i,vij,vj->v", s, G, sigma)
             ok = q > 1e-30
@@ -241,18 +254,26 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
     sigma = np.asarray(sigma, dtype=np.float64)
-    if (d is None and params.domain == "texture" and params.max_texels_per_pixel > 0
-            and problem.texture is not None):
+    if d is None and params.domain == "texture" and params.max_texels_per_pixel > 0 and problem.texture is not None:
         size = supported_size(problem, params.max_texels_per_pixel)
         if size < problem.texture.size:
-            r = solve_albedo(with_texture_size(problem, size), sigma, replace(params, max_texels_per_pixel=0.0),
-                             None, progress, cancel)
+            r = solve_albedo(
+                with_texture_size(problem, size),
+                sigma,
+                replace(params, max_texels_per_pixel=0.0),
+                None,
+                progress,
+                cancel,
+            )
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
             return r
     if d is None:
-        d = (texture_domain(problem, data_model=params.data_model) if params.domain == "texture"
-             else image_domain(problem, normalise_correspondences=params.normalise_correspondences))
+        d = (
+            texture_domain(problem, data_model=params.data_model)
+            if params.domain == "texture"
+            else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
+        )
     t_build = time.perf_counter() - t0
     if rho0 is None:
         rho0 = division_start(d, sigma)
@@ -284,9 +305,13 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
     views, texture, seen = _outputs(problem, d, rho)
-    info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
-            "n_unknowns": d.n_unknowns, "domain": d.domain,
-            "solved_size": problem.texture.size if d.domain == "texture" else None}
+    info = {
+        "build_seconds": t_build,
+        "solve_seconds": time.perf_counter() - t0 - t_build,
+        "n_unknowns": d.n_unknowns,
+        "domain": d.domain,
+        "solved_size": problem.texture.size if d.domain == "texture" else None,
+    }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
 
@@ -314,15 +339,24 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}: {msg}")
 
     light_problem = problem
-    if (params.domain == "texture" and params.light_size and problem.texture is not None
-            and problem.texture.size > params.light_size):
+    if (
+        params.domain == "texture"
+        and params.light_size
+        and problem.texture is not None
+        and problem.texture.size > params.light_size
+    ):
         light_problem = with_texture_size(problem, params.light_size)
     first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
-    second = solve_albedo(problem, first.sigma, replace(params, lam=params.albedo_lam),
-                          progress=part(0.6, 1.0, "albedo"), cancel=cancel)
-    second.info["lighting_stage"] = {"iterations": first.iterations, "energy": first.energy[-1:],
-                                     "solved_size": first.info.get("solved_size"), "lam": params.lam,
-                                     "lighting": params.lighting}
+    second = solve_albedo(
+        problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
+    )
+    second.info["lighting_stage"] = {
+        "iterations": first.iterations,
+        "energy": first.energy[-1:],
+        "solved_size": first.info.get("solved_size"),
+        "lam": params.lam,
+        "lighting": params.lighting,
+    }
     second.info["albedo_lam"] = params.albedo_lam
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second

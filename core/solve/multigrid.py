@@ -17,6 +17,7 @@ and help far less, so they are only the fallback for pixels without UVs.
 A symmetric V-cycle with l1-Jacobi smoothing (always convergent) and a
 direct solve on the coarsest level preconditions CG.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,7 +47,7 @@ def surface_grid(uv: np.ndarray, per_block: float = 4.0) -> np.ndarray:
 
     # Blocks of the grid of size 2s are the cells of size s; there are at most s^2 of them.
     size = 2 ** max(0, int(np.log2(max(n / per_block, 1.0)) // 2))
-    while size < 2 ** 14:
+    while size < 2**14:
         r, c = cells(2 * size)
         if np.unique(r * (2 * size) + c).size > n / per_block:
             break
@@ -66,8 +67,9 @@ def block_grid(problem, d) -> np.ndarray:
         return np.column_stack([np.zeros(d.n_unknowns, np.intp), *np.divmod(d.texel_index, problem.texture.size)])
     if problem.uv is not None:
         return surface_grid(np.concatenate([uv[m] for uv, m in zip(problem.uv, problem.masks)]))
-    return np.concatenate([np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)])
-                           for i, m in enumerate(problem.masks)]).astype(np.intp)
+    return np.concatenate(
+        [np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)]) for i, m in enumerate(problem.masks)]
+    ).astype(np.intp)
 
 
 def _blocks(grid):
@@ -145,15 +147,17 @@ def _gram_pattern(M):
                 coef.append(vals[:, k] * vals[:, m])
     # Row p of U sums the contributions of all difference rows to one pair (i < j).
     order, starts, keys = _sort_keys(np.concatenate(keys))
-    U = sp.csr_matrix((np.concatenate(coef)[order], np.concatenate(row)[order],
-                       np.append(np.flatnonzero(starts), order.size)), shape=(int(starts.sum()), M.shape[0]))
+    U = sp.csr_matrix(
+        (np.concatenate(coef)[order], np.concatenate(row)[order], np.append(np.flatnonzero(starts), order.size)),
+        shape=(int(starts.sum()), M.shape[0]),
+    )
     upper_keys = keys[starts]
     ui, uj = np.divmod(upper_keys, n)
     full, where = _distinct(np.concatenate([upper_keys, uj * n + ui, np.arange(n, dtype=np.int64) * (n + 1)]))
     nu = upper_keys.size
     # The diagonal is (M^2)^T w: the transpose of a CSR matrix is a CSC view, multiplied without converting.
-    M2T = sp.csr_matrix((M.data ** 2, M.indices, M.indptr), shape=M.shape).T
-    return _Pattern(n, full), U, M2T, where[:nu], where[nu:2 * nu], where[2 * nu:]
+    M2T = sp.csr_matrix((M.data**2, M.indices, M.indptr), shape=M.shape).T
+    return _Pattern(n, full), U, M2T, where[:nu], where[nu : 2 * nu], where[2 * nu :]
 
 
 def _galerkin_map(pattern: _Pattern, agg, nc):
@@ -198,8 +202,9 @@ class Hierarchy:
         if not self.agg:
             return
         # B P: B's rows with columns renamed to blocks; entries in one block add up, rows inside one cancel.
-        BP = sp.csr_matrix((B.data.astype(np.float64), self.agg[0][B.indices], B.indptr.copy()),
-                           shape=(B.shape[0], self.sizes[0]))
+        BP = sp.csr_matrix(
+            (B.data.astype(np.float64), self.agg[0][B.indices], B.indptr.copy()), shape=(B.shape[0], self.sizes[0])
+        )
         BP.sum_duplicates()
         BP.eliminate_zeros()
         self.rows = np.flatnonzero(np.diff(BP.indptr) > 0)

@@ -15,6 +15,7 @@ Conventions
   (v = 1), as EXR viewers expect. Texel ``(r, c)`` has its centre at
   ``u = (c + 0.5) / N``, ``v = 1 - (r + 0.5) / N``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -80,8 +81,12 @@ class Problem:
             self.names = [f"view{i}" for i in range(m)]
         if len(self.names) != m:
             _fail(f"problem: {len(self.names)} names for {m} views")
-        for what, seq in (("masks", self.masks), ("normals", self.normals),
-                          ("uv", self.uv), ("view_weight", self.view_weight)):
+        for what, seq in (
+            ("masks", self.masks),
+            ("normals", self.normals),
+            ("uv", self.uv),
+            ("view_weight", self.view_weight),
+        ):
             if seq is not None and len(seq) != m:
                 _fail(f"problem: {len(seq)} {what} for {m} images")
         self.images = [np.asarray(a, dtype=np.float32) for a in self.images]
@@ -137,10 +142,16 @@ class Problem:
             _fail(f"problem: {len(self.transfer)} transfer maps for {self.n_views} images")
         self.transfer = [np.asarray(t, dtype=np.float32) for t in self.transfer]
         for i, (t, mask) in enumerate(zip(self.transfer, self.masks)):
-            if t.shape[:2] != mask.shape or t.ndim != 3 or t.shape[2] not in (9, 16, 25) \
-                    or t.shape[2] != self.transfer[0].shape[2]:
-                _fail(f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
-                      "(or 16 or 25 coefficients, the same in every view)")
+            if (
+                t.shape[:2] != mask.shape
+                or t.ndim != 3
+                or t.shape[2] not in (9, 16, 25)
+                or t.shape[2] != self.transfer[0].shape[2]
+            ):
+                _fail(
+                    f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
+                    "(or 16 or 25 coefficients, the same in every view)"
+                )
             if not np.isfinite(t[mask]).all():
                 _fail(f"view {i} ({self.names[i]}): transfer inside the mask is NaN or infinite")
 

@@ -7,6 +7,7 @@ subsampled, not averaged: averaging UVs or normals across a seam or a
 silhouette would invent surface that does not exist. The image-domain
 correspondences whose source pixel survives are kept, in coarse coordinates.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -14,8 +15,8 @@ import warnings
 import numpy as np
 
 from ..geometry.bilinear import interpolate, masked_corners
-from .problem import Correspondences, Problem, TextureLayout
 from ..geometry.texels import bilinear_texels, uv_of_texel
+from .problem import Correspondences, Problem, TextureLayout
 
 __all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
 
@@ -57,8 +58,13 @@ def _coarsen_correspondences(corr: Correspondences | None, fine: list, coarse: l
     keep = (r % 2 == 0) & (c % 2 == 0)
     keep &= (xy[:, 0] >= -0.5) & (xy[:, 1] >= -0.5) & (xy[:, 0] <= wc[vb] - 0.5) & (xy[:, 1] <= hc[vb] - 0.5)
     va = corr.view_a[keep]
-    return Correspondences(view_a=va, pixel_a=(r[keep] // 2) * wc[va] + c[keep] // 2, view_b=vb[keep],
-                           xy_b=xy[keep], weight=corr.weight[keep])
+    return Correspondences(
+        view_a=va,
+        pixel_a=(r[keep] // 2) * wc[va] + c[keep] // 2,
+        view_b=vb[keep],
+        xy_b=xy[keep],
+        weight=corr.weight[keep],
+    )
 
 
 def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
@@ -87,10 +93,17 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
     def half(seq):
         return None if seq is None else [np.ascontiguousarray(a[::2, ::2]) for a in seq]
 
-    return Problem(half(problem.images), sub, half(problem.normals),
-                   correspondences=_coarsen_correspondences(problem.correspondences, problem.masks, sub),
-                   uv=half(problem.uv), texture=None if layout is None else _coarsen_layout(layout),
-                   view_weight=half(problem.view_weight), names=list(problem.names), transfer=half(problem.transfer))
+    return Problem(
+        half(problem.images),
+        sub,
+        half(problem.normals),
+        correspondences=_coarsen_correspondences(problem.correspondences, problem.masks, sub),
+        uv=half(problem.uv),
+        texture=None if layout is None else _coarsen_layout(layout),
+        view_weight=half(problem.view_weight),
+        names=list(problem.names),
+        transfer=half(problem.transfer),
+    )
 
 
 def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -134,9 +147,17 @@ def with_texture_size(problem: Problem, size: int) -> Problem:
     layout = problem.texture
     while layout.size > size:
         layout = _coarsen_layout(layout)
-    return Problem(problem.images, problem.masks, problem.normals, correspondences=problem.correspondences,
-                   uv=problem.uv, texture=layout, view_weight=problem.view_weight, names=list(problem.names),
-                   transfer=problem.transfer)
+    return Problem(
+        problem.images,
+        problem.masks,
+        problem.normals,
+        correspondences=problem.correspondences,
+        uv=problem.uv,
+        texture=layout,
+        view_weight=problem.view_weight,
+        names=list(problem.names),
+        transfer=problem.transfer,
+    )
 
 
 def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayout):

@@ -3,6 +3,7 @@
 ``nu(n) = [n1, n2, n3, 1, n1 n2, n1 n3, n2 n3, n1^2 - n2^2, 3 n3^2 - 1]``.
 The shading of a point under lighting ``sigma`` (9-vector) is ``sigma . nu(n)``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,12 +36,27 @@ def sh_basis(normals: np.ndarray, dtype=np.float32, order: int = 2) -> np.ndarra
     cols = [x, y, z, np.ones_like(x), x * y, x * z, y * z, x * x - y * y, 3 * z * z - 1]
     if order >= 3:
         zz = z * z
-        cols += [y * (3 * x * x - y * y), x * y * z, y * (5 * zz - 1), z * (5 * zz - 3), x * (5 * zz - 1),
-                 z * (x * x - y * y), x * (x * x - 3 * y * y)]
+        cols += [
+            y * (3 * x * x - y * y),
+            x * y * z,
+            y * (5 * zz - 1),
+            z * (5 * zz - 3),
+            x * (5 * zz - 1),
+            z * (x * x - y * y),
+            x * (x * x - 3 * y * y),
+        ]
     if order >= 4:
-        cols += [x * y * (x * x - y * y), y * z * (3 * x * x - y * y), x * y * (7 * zz - 1), y * z * (7 * zz - 3),
-                 35 * zz * zz - 30 * zz + 3, x * z * (7 * zz - 3), (x * x - y * y) * (7 * zz - 1),
-                 x * z * (x * x - 3 * y * y), x * x * (x * x - 3 * y * y) - y * y * (3 * x * x - y * y)]
+        cols += [
+            x * y * (x * x - y * y),
+            y * z * (3 * x * x - y * y),
+            x * y * (7 * zz - 1),
+            y * z * (7 * zz - 3),
+            35 * zz * zz - 30 * zz + 3,
+            x * z * (7 * zz - 3),
+            (x * x - y * y) * (7 * zz - 1),
+            x * z * (x * x - 3 * y * y),
+            x * x * (x * x - 3 * y * y) - y * y * (3 * x * x - y * y),
+        ]
     return np.stack(cols, axis=-1).astype(dtype, copy=False)
 
 

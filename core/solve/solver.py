@@ -39,6 +39,7 @@ textured surface exactly in the well-posed synthetic case). lambda is the
 caller's; the add-on and the command lines pick it with
 :mod:`core.solve.lambda_choice`.
 """
+
 from __future__ import annotations
 
 import time
@@ -50,9 +51,9 @@ import scipy.sparse as sp
 
 from ..progress import check_cancel
 from .cg import pcg
+from .discretization import Discretization, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
-from .discretization import Discretization, image_domain, texture_domain
 from .problem import Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import diffuse, unpack_products
@@ -155,7 +156,7 @@ class SolverParams:
     albedo_lam: float | None = None
     light_size: int = 128
 
-    def resolved(self) -> "SolverParams":
+    def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
         pre = self.preconditioner
         if pre == "auto":
@@ -167,8 +168,9 @@ class SolverParams:
         if self.domain not in ("texture", "image"):
             raise ValueError(f"solver: domain must be 'texture' or 'image', got {self.domain!r}")
         if self.preconditioner not in ("auto", "jacobi", "multigrid"):
-            raise ValueError("solver: preconditioner must be 'auto', 'jacobi' or 'multigrid', "
-                             f"got {self.preconditioner!r}")
+            raise ValueError(
+                f"solver: preconditioner must be 'auto', 'jacobi' or 'multigrid', got {self.preconditioner!r}"
+            )
         if self.data_model not in ("interpolate", "splat"):
             raise ValueError(f"solver: data_model must be 'interpolate' or 'splat', got {self.data_model!r}")
         for name in ("lam", "mu", "delta"):
@@ -186,8 +188,9 @@ class SolverParams:
         if self.levels < 1 or self.coarse_iter < 1:
             raise ValueError("solver: levels and coarse_iter must be >= 1")
         if self.lighting not in ("per_view", "shared", "coupled", "fixed"):
-            raise ValueError("solver: lighting must be 'per_view', 'shared', 'coupled' or 'fixed', "
-                             f"got {self.lighting!r}")
+            raise ValueError(
+                f"solver: lighting must be 'per_view', 'shared', 'coupled' or 'fixed', got {self.lighting!r}"
+            )
         if not np.isfinite(self.coupling) or self.coupling < 0:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
@@ -245,8 +248,8 @@ def _weighted_huber(x, w, delta):
     """``sum(w * phi_delta(x))``, computed in x's precision chunk by chunk and summed in float64."""
     total = 0.0
     for lo in range(0, x.size, _CHUNK):
-        h = huber_inplace(x[lo:lo + _CHUNK], delta)
-        h *= w[lo:lo + _CHUNK]
+        h = huber_inplace(x[lo : lo + _CHUNK], delta)
+        h *= w[lo : lo + _CHUNK]
         total += float(np.add.reduce(h, dtype=np.float64))
     return total
 
@@ -264,8 +267,10 @@ def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None):
 def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu: float, delta: float) -> float:
     """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
     s = d.row_scale(lam, mu).astype(np.float64)
-    return sum(_channel_energy(d, rho[:, c], _shading(d, sigma[:, c])[d.obs_pixel], d.values[d.obs_pixel, c],
-                               s, delta) for c in range(rho.shape[1]))
+    return sum(
+        _channel_energy(d, rho[:, c], _shading(d, sigma[:, c])[d.obs_pixel], d.values[d.obs_pixel, c], s, delta)
+        for c in range(rho.shape[1])
+    )
 
 
 class _Channel:
@@ -287,6 +292,7 @@ class _Channel:
         self.coupling = None
         if params.lighting == "coupled":
             from .lighting import Coupling
+
             self.coupling = Coupling(d, c, params.coupling, self.sigma)
         self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
         self.s_ft = self.s.astype(self.ft)
@@ -302,9 +308,15 @@ class _Channel:
         self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
 
     def energy(self, rho=None, obs_shade=None, sigma=None, world=None):
-        e = _channel_energy(self.d, self.rho if rho is None else rho,
-                            self.obs_shade if obs_shade is None else obs_shade, self.obs_values, self.s_ft,
-                            self.delta, rows=self._Bx)
+        e = _channel_energy(
+            self.d,
+            self.rho if rho is None else rho,
+            self.obs_shade if obs_shade is None else obs_shade,
+            self.obs_values,
+            self.s_ft,
+            self.delta,
+            rows=self._Bx,
+        )
         if self.coupling is not None:  # the lighting prior is part of the energy
             e += self.coupling.penalty(self.sigma if sigma is None else sigma, world)
         return e
@@ -376,6 +388,7 @@ class _Channel:
         world = None
         if self.lighting == "shared":
             from .lighting import shared_lighting_step
+
             sigma = shared_lighting_step(Ms, bs, self.sigma)
         elif self.lighting == "coupled":
             sigma, world = self.coupling.step(Ms, bs, self.sigma)
@@ -439,6 +452,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params = params.resolved()
     if params.albedo_lam is not None:
         from .lighting import solve_two_stage
+
         return solve_two_stage(problem, params, progress, cancel)
     t0 = time.perf_counter()
 
@@ -498,8 +512,11 @@ def _ladder(problem, params: SolverParams) -> list[_Level]:
         if smaller is None:
             return ladder[::-1]
         problem = smaller
-        label = (f"coarse level {problem.texture.size}" if texture else
-                 f"coarse level {problem.masks[0].shape[1]}x{problem.masks[0].shape[0]}")
+        label = (
+            f"coarse level {problem.texture.size}"
+            if texture
+            else f"coarse level {problem.masks[0].shape[1]}x{problem.masks[0].shape[0]}"
+        )
 
 
 # Share of the progress bar that the levels below a level take.
@@ -518,6 +535,7 @@ def _level_report(progress, levels, i):
         for _ in range(depth):
             frac = _COARSE_SHARE * frac
         progress(frac, prefix + msg)
+
     return report
 
 
@@ -537,24 +555,44 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     hierarchy = None
     if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
         hierarchy = Hierarchy(block_grid(problem, d), d.B, d.BT)
-    channels = [_Channel(d, c, params, None if rho0 is None else rho0[:, c],
-                         None if sigma0 is None else sigma0[:, c], hierarchy) for c in range(problem.channels)]
-    history, elapsed = _iterate(channels, params, lambda it, e: report(
-        base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {e:.6g}"), check_cancel, t0)
+    channels = [
+        _Channel(
+            d, c, params, None if rho0 is None else rho0[:, c], None if sigma0 is None else sigma0[:, c], hierarchy
+        )
+        for c in range(problem.channels)
+    ]
+    history, elapsed = _iterate(
+        channels,
+        params,
+        lambda it, e: report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {e:.6g}"),
+        check_cancel,
+        t0,
+    )
     check_cancel()
     it = len(history) - 1
     rho, sigma = _rescaled(d, channels)
     views, texture, seen = _outputs(problem, d, rho)
     report(1.0, f"done in {it} iterations")
-    info = {"build_seconds": t_build, "solve_seconds": time.perf_counter() - t0 - t_build,
-            "n_unknowns": d.n_unknowns, "n_observations": int(d.obs_pixel.size),
-            "n_tv_rows": d.n_tv, "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
-            "domain": d.domain, "elapsed": elapsed,
-            "solved_size": problem.texture.size if d.domain == "texture" else None,
-            "coarse": None if below is None else {
-                "size": None if below.texture is None else int(below.texture.shape[0]),
-                "shapes": [v.shape[:2] for v in below.views], "iterations": below.iterations,
-                "energy": below.energy, "info": below.info}}
+    info = {
+        "build_seconds": t_build,
+        "solve_seconds": time.perf_counter() - t0 - t_build,
+        "n_unknowns": d.n_unknowns,
+        "n_observations": int(d.obs_pixel.size),
+        "n_tv_rows": d.n_tv,
+        "n_correspondence_rows": int(d.B.shape[0] - d.n_tv),
+        "domain": d.domain,
+        "elapsed": elapsed,
+        "solved_size": problem.texture.size if d.domain == "texture" else None,
+        "coarse": None
+        if below is None
+        else {
+            "size": None if below.texture is None else int(below.texture.shape[0]),
+            "shapes": [v.shape[:2] for v in below.views],
+            "iterations": below.iterations,
+            "energy": below.energy,
+            "info": below.info,
+        },
+    }
     if level.layout is not None:
         texture, seen = upsample_bilinear(texture, seen, level.layout)
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
@@ -614,15 +652,17 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
     else:
         wsum = np.bincount(d.obs_pixel, weights=d.obs_weight, minlength=d.nu.shape[0])
         rho_o = d.gather(rho)
-        pix_rho = np.stack([np.bincount(d.obs_pixel, weights=d.obs_weight * rho_o[:, c],
-                                        minlength=d.nu.shape[0]) for c in range(C)], axis=1)
+        pix_rho = np.stack(
+            [np.bincount(d.obs_pixel, weights=d.obs_weight * rho_o[:, c], minlength=d.nu.shape[0]) for c in range(C)],
+            axis=1,
+        )
         with np.errstate(invalid="ignore", divide="ignore"):
             pix_rho = pix_rho / wsum[:, None]
     views = []
     for v in range(d.n_views):
         mask = problem.masks[v]
         out = np.full(mask.shape + (C,), np.nan, dtype=np.float32)
-        out[mask] = pix_rho[d.pixel_offsets[v]:d.pixel_offsets[v + 1]]
+        out[mask] = pix_rho[d.pixel_offsets[v] : d.pixel_offsets[v + 1]]
         views.append(out)
     texture = seen = None
     if d.domain == "texture":
@@ -636,7 +676,7 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
     return views, texture, seen
 
 
-def _gauss_newton_step(ch: "_Channel") -> bool:
+def _gauss_newton_step(ch: _Channel) -> bool:
     """One Gauss-Newton step on rho and sigma together, on the current majorant.
 
     Plain alternation crawls along the valley where rho and sigma trade off.
@@ -666,7 +706,7 @@ def _gauss_newton_step(ch: "_Channel") -> bool:
     return False
 
 
-def _joint_system(ch: "_Channel", rho: np.ndarray):
+def _joint_system(ch: _Channel, rho: np.ndarray):
     """The Gauss-Newton normal equations in ``(rho, sigma)`` at ``rho`` and the channel's sigma.
 
     Returns
@@ -698,8 +738,8 @@ def _joint_system(ch: "_Channel", rho: np.ndarray):
     free[3] = 0.0  # the pinned constant term of view 0
     S_inv = np.empty_like(S)
     for v in range(m):
-        M = S[v] * np.outer(free[9 * v:9 * v + 9], free[9 * v:9 * v + 9])
-        S_inv[v] = np.linalg.pinv(M + np.diag(1.0 - free[9 * v:9 * v + 9]))
+        M = S[v] * np.outer(free[9 * v : 9 * v + 9], free[9 * v : 9 * v + 9])
+        S_inv[v] = np.linalg.pinv(M + np.diag(1.0 - free[9 * v : 9 * v + 9]))
 
     def matvec(x):
         xr, xs = x[:n], x[n:] * free
@@ -710,8 +750,12 @@ def _joint_system(ch: "_Channel", rho: np.ndarray):
         return np.concatenate([yr, ys * free])
 
     def precondition(x):
-        return np.concatenate([np.where(jacobi > 0, x[:n] / np.maximum(jacobi, 1e-300), 0.0),
-                               np.einsum("vij,vj->vi", S_inv, (x[n:] * free).reshape(m, 9)).ravel() * free])
+        return np.concatenate(
+            [
+                np.where(jacobi > 0, x[:n] / np.maximum(jacobi, 1e-300), 0.0),
+                np.einsum("vij,vj->vi", S_inv, (x[n:] * free).reshape(m, 9)).ravel() * free,
+            ]
+        )
 
     return matvec, precondition, -np.concatenate([g_rho, g_sigma * free]), free
 
@@ -724,8 +768,10 @@ def _sigma_coupling(d: Discretization, AT, coef: np.ndarray):
     """
     nu_o = d.nu[d.obs_pixel].astype(np.float64)
     O = nu_o.shape[0]
-    N = sp.csr_matrix(((coef[:, None] * nu_o).ravel(), (9 * d.obs_view[:, None] + np.arange(9)).ravel(),
-                       np.arange(0, 9 * O + 1, 9)), shape=(O, 9 * d.n_views))
+    N = sp.csr_matrix(
+        ((coef[:, None] * nu_o).ravel(), (9 * d.obs_view[:, None] + np.arange(9)).ravel(), np.arange(0, 9 * O + 1, 9)),
+        shape=(O, 9 * d.n_views),
+    )
     C = (AT @ N).tocsr()
     return C, C.T.tocsr()
 
@@ -740,5 +786,5 @@ def _sigma_blocks(d: Discretization, w, r, rho_o):
     for v in range(d.n_views):
         lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
         S[v] = unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
-        g_sigma[9 * v:9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
+        g_sigma[9 * v : 9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
     return S, g_sigma

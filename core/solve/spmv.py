@@ -7,6 +7,7 @@ difference rows, and threads doing fresh products run slower together than
 one alone: the channels' threads only pay off with kept buffers
 (docs/measurements.md).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,9 +26,15 @@ def matvec_into(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
     Allocates nothing when A, x and out share one dtype and x and out are
     contiguous; otherwise it falls back to ``A @ x`` (same result).
     """
-    if (_csr_matvec is not None and A.format == "csr" and A.dtype == x.dtype == out.dtype
-            and x.ndim == 1 and x.flags.c_contiguous and out.flags.c_contiguous
-            and A.indptr.dtype == A.indices.dtype):
+    if (
+        _csr_matvec is not None
+        and A.format == "csr"
+        and A.dtype == x.dtype == out.dtype
+        and x.ndim == 1
+        and x.flags.c_contiguous
+        and out.flags.c_contiguous
+        and A.indptr.dtype == A.indices.dtype
+    ):
         out.fill(0)
         _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, out)
     else:

@@ -1,8 +1,9 @@
 """From the solver's result to a full texture: per-view maps fused onto the texels, unseen texels filled, and the
 texture sampled back at the pixels.
 """
-from .fuse import fuse_views
+
 from .fill import fill_unseen
+from .fuse import fuse_views
 from .sample import sample_texture
 
 __all__ = [

@@ -2,6 +2,7 @@
 few texels of dilation past the island borders (so that mipmaps and filtering do not bleed the
 background in). Used after both the texture-domain solve and the image-domain fusion.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -70,8 +71,7 @@ def _upsample(coarse, dom_c, shape, where):
     fr, fc = (rr - r0)[:, None], (cc - c0)[:, None]
     acc = np.zeros((where.size, coarse.shape[-1]))
     wsum = np.zeros((where.size, 1))
-    for dr, dc, w in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
-                      (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+    for dr, dc, w in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
         rq, cq = r0 + dr, c0 + dc
         ok = (rq >= 0) & (rq < nc0) & (cq >= 0) & (cq < nc1)
         rq, cq = np.where(ok, rq, 0), np.where(ok, cq, 0)
@@ -112,15 +112,21 @@ def _harmonic(vals, fixed, dom):
 
     cnt = block_sum(fixed.astype(np.float32))
     fixed_c = cnt > 0
-    vals_c = block_sum(vals) / np.maximum(cnt, 1)[..., None]      # vals is 0 off fixed
+    vals_c = block_sum(vals) / np.maximum(cnt, 1)[..., None]  # vals is 0 off fixed
     dom_c = block_sum(dom.astype(np.float32)) > 0
     free_c, x_c = _harmonic(vals_c, fixed_c, dom_c)
     vals_c.reshape(-1, vals_c.shape[-1])[free_c] = x_c
     x0 = _upsample(vals_c, dom_c, dom.shape, free)
     inv_deg = 1.0 / deg
     for ch in range(rhs.shape[1]):
-        x0[:, ch] = pcg(a.__matmul__, np.ascontiguousarray(rhs[:, ch]), np.ascontiguousarray(x0[:, ch]), inv_deg,
-                        _CG_MAX_ITER, _CG_TOL)
+        x0[:, ch] = pcg(
+            a.__matmul__,
+            np.ascontiguousarray(rhs[:, ch]),
+            np.ascontiguousarray(x0[:, ch]),
+            inv_deg,
+            _CG_MAX_ITER,
+            _CG_TOL,
+        )
     return free, x0
 
 

@@ -7,6 +7,7 @@ filled by :func:`core.texture.fill.fill_unseen`.
 
 The texel convention is :mod:`core.geometry.texels`'s (and :mod:`core.solve.problem`'s).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -241,8 +242,10 @@ def fuse_views(maps, masks, uv, size, view_weight=None, inside=None, margin=4):
     """
     n, inside = _check_args(maps, masks, uv, size, view_weight, inside)
     maps, c = _as_maps(maps)
-    recs = [_view_records(i, maps[i], masks[i], uv[i], None if view_weight is None else view_weight[i],
-                          n, inside) for i in range(len(maps))]
+    recs = [
+        _view_records(i, maps[i], masks[i], uv[i], None if view_weight is None else view_weight[i], n, inside)
+        for i in range(len(maps))
+    ]
     if sum(r[0].size for r in recs) == 0:
         raise ValueError("fuse_views: no masked pixel lands in the texture (check the UVs and inside)")
     texels, count, start, vals, wts = _group_by_texel(recs, n * n)

@@ -1,4 +1,5 @@
 """A texture looked up at the UVs of a view's pixels (the texture-domain result seen by each view)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -17,6 +17,7 @@ the ``tiny_scene`` fixture):
 * :func:`build_scene` puts it all together; :func:`data_counts` snapshots the
   datablock counts to check that a failed run changed nothing.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,11 +44,13 @@ pytestmark = pytest.mark.bpy
 #: Skips a test that opens a checked-in fixture .blend on a Blender that cannot read it.
 needs_fixture_blend = pytest.mark.skipif(
     bpy.app.version < (4, 5, 0),
-    reason="the checked-in fixture .blend files are saved by Blender 5.0, whose file format Blender < 4.5 cannot read")
+    reason="the checked-in fixture .blend files are saved by Blender 5.0, whose file format Blender < 4.5 cannot read",
+)
 #: Skips a test that renders a scene with blend_fixtures/make_fixtures.py on a Blender older than its API.
 needs_fixture_maker = pytest.mark.skipif(
     bpy.app.version < (5, 0, 0),
-    reason="blend_fixtures/make_fixtures.py uses the Blender 5.0 API (image_settings.media_type)")
+    reason="blend_fixtures/make_fixtures.py uses the Blender 5.0 API (image_settings.media_type)",
+)
 
 
 @pytest.fixture(autouse=True)
@@ -61,8 +64,20 @@ def fresh_scene():
 def data_counts():
     """Counts of the datablocks a run could create or remove."""
     d = bpy.data
-    return {k: len(getattr(d, k)) for k in ("images", "objects", "meshes", "scenes", "materials",
-                                              "cameras", "collections", "node_groups", "textures")}
+    return {
+        k: len(getattr(d, k))
+        for k in (
+            "images",
+            "objects",
+            "meshes",
+            "scenes",
+            "materials",
+            "cameras",
+            "collections",
+            "node_groups",
+            "textures",
+        )
+    }
 
 
 def link(obj, scene=None):
@@ -70,8 +85,9 @@ def link(obj, scene=None):
     return obj
 
 
-def add_uv_sphere(name="Target", radius=1.0, segments=24, rings=12, location=(0.0, 0.0, 0.0),
-                  smooth=True, flat_faces=()):
+def add_uv_sphere(
+    name="Target", radius=1.0, segments=24, rings=12, location=(0.0, 0.0, 0.0), smooth=True, flat_faces=()
+):
     """A UV-mapped sphere mesh object (UV map "UVMap"), smooth-shaded unless told.
 
     ``flat_faces``: polygon indices to leave flat-shaded.
@@ -91,8 +107,9 @@ def add_uv_sphere(name="Target", radius=1.0, segments=24, rings=12, location=(0.
     return obj
 
 
-def add_camera(name, location, look_at=(0.0, 0.0, 0.0), lens=50.0, sensor_fit="AUTO", shift=(0.0, 0.0),
-               sensor=(36.0, 24.0)):
+def add_camera(
+    name, location, look_at=(0.0, 0.0, 0.0), lens=50.0, sensor_fit="AUTO", shift=(0.0, 0.0), sensor=(36.0, 24.0)
+):
     """A perspective camera at ``location`` looking at ``look_at`` (+Y up-ish)."""
     cam = bpy.data.cameras.new(name)
     cam.lens = lens
@@ -135,7 +152,7 @@ def write_png(path, codes):
     img = bpy.data.images.new("_write_png", w, h, alpha=False)
     try:
         px = np.ones((h, w, 4), dtype=np.float32)
-        px[..., :3] = codes[::-1] / np.float32(255)      # a byte image stores code/255, bottom row first
+        px[..., :3] = codes[::-1] / np.float32(255)  # a byte image stores code/255, bottom row first
         img.pixels.foreach_set(px.ravel())
         img.filepath_raw = path
         img.file_format = "PNG"
@@ -253,13 +270,12 @@ def read_render_pass(path, name):
     if name in [n for n, _ in exr_parts(path)]:
         return read_exr(path, part=name)[0]
     arr, channels = read_exr(path, part=0)
-    mine = {c[len(name) + 1:]: i for i, c in enumerate(channels) if c.startswith(name + ".")}
+    mine = {c[len(name) + 1 :]: i for i, c in enumerate(channels) if c.startswith(name + ".")}
     order = [c for c in "RGBA" if c in mine] + [c for c in mine if c not in "RGBA"]
     return arr[:, :, [mine[c] for c in order]]
 
 
-def build_scene(folder=None, n_cameras=4, size=(64, 48), photo="background", kind="float", radius=6.0,
-                **camera_kw):
+def build_scene(folder=None, n_cameras=4, size=(64, 48), photo="background", kind="float", radius=6.0, **camera_kw):
     """A UV sphere "Target" and ``n_cameras`` ring cameras ``view<i>_cam`` with photos.
 
     photo: ``"background"`` (camera background image), ``"plane"`` (image plane),

@@ -3,6 +3,7 @@
 Our default (texture domain, default lambda and iterations) must beat plain projection by the margin measured
 here, under both protocols (the albedo texture, and the paper's per-view maps).
 """
+
 from __future__ import annotations
 
 import json
@@ -38,8 +39,9 @@ def make_fixtures():
 def small_sky(tmp_path_factory):
     """lambert_sky at 160x120, 8 cameras, 16 samples, 128^2 truth, with per-view truth (~10 s of Cycles)."""
     out = tmp_path_factory.mktemp("sky")
-    make_fixtures().generate("lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=SAMPLES,
-                             texture_size=TEX, view_gt=True)
+    make_fixtures().generate(
+        "lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=SAMPLES, texture_size=TEX, view_gt=True
+    )
     return os.path.join(str(out), "lambert_sky")
 
 
@@ -48,8 +50,10 @@ def score(fixture_dir, out_dir, **kw):
     with open(os.path.join(fixture_dir, "scene.json")) as fh:
         record = json.load(fh)
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"))
-    rep = pipeline.run(bpy.context.scene, pipeline.Options(object_name=record["mesh"]["object"],
-                                                           texture_size=TEX, out_dir=str(out_dir), **kw))
+    rep = pipeline.run(
+        bpy.context.scene,
+        pipeline.Options(object_name=record["mesh"]["object"], texture_size=TEX, out_dir=str(out_dir), **kw),
+    )
     gt = read_exr(os.path.join(fixture_dir, "albedo_gt.exr"))[0]
     tex, n = texture_rmse(rep.albedo_path, gt)
     with open(os.path.join(out_dir, "report.json")) as fh:
@@ -59,7 +63,7 @@ def score(fixture_dir, out_dir, **kw):
 
 def test_default_beats_projection_on_the_smallest_fixture(small_sky, tmp_path):
     proj_tex, proj_views, n_proj, gt = score(small_sky, tmp_path / "project", method="project")
-    ours_tex, ours_views, n_ours, _ = score(small_sky, tmp_path / "texture")      # the defaults
+    ours_tex, ours_views, n_ours, _ = score(small_sky, tmp_path / "texture")  # the defaults
     inside = int(np.count_nonzero(gt[..., 3] > 0.5))
     # Measured: 7022 (project) and 7251 (texture: the bilinear splat reaches a few more) of 8600 inside texels.
     assert min(n_proj, n_ours) > 0.75 * inside

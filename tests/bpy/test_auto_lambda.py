@@ -1,4 +1,5 @@
 """Auto lambda on the checked-in fixtures: the photos alone tell one lighting from a lighting per shot."""
+
 from __future__ import annotations
 
 import json
@@ -16,16 +17,22 @@ from blender_addon.core.solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING,
 pytestmark = [pytest.mark.bpy, needs_fixture_blend]
 
 
-@pytest.mark.parametrize("name,lam,lighting", [("lambert_sky", LAMBDA_FIXED, "coupled"),
-                                               ("photo_sun", LAMBDA_FIXED, "coupled"),
-                                               ("varying_light", LAMBDA_VARYING, "per_view")])
+@pytest.mark.parametrize(
+    "name,lam,lighting",
+    [
+        ("lambert_sky", LAMBDA_FIXED, "coupled"),
+        ("photo_sun", LAMBDA_FIXED, "coupled"),
+        ("varying_light", LAMBDA_VARYING, "per_view"),
+    ],
+)
 @pytest.mark.parametrize("stages", [1, 2])
 def test_auto_lambda_follows_the_lighting(name, lam, lighting, stages, tmp_path):
     fixture = os.path.join(ROOT, "blend_fixtures", name)
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture, "scene.blend"))
     # A 32^2 texture has no coarse level, so one iteration is cheap; lambda is chosen before solving.
-    options = pipeline.Options(object_name="Subject", texture_size=32, max_iter=1, working_res_mp=0.05,
-                               out_dir=str(tmp_path), occlusion=False)
+    options = pipeline.Options(
+        object_name="Subject", texture_size=32, max_iter=1, working_res_mp=0.05, out_dir=str(tmp_path), occlusion=False
+    )
     if stages == 1:
         options.albedo_lam = None
     rep = pipeline.run(bpy.context.scene, options)
@@ -46,9 +53,19 @@ def test_auto_lambda_follows_the_lighting(name, lam, lighting, stages, tmp_path)
 def test_a_given_lambda_is_used_as_is(tmp_path):
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ROOT, "blend_fixtures", "varying_light", "scene.blend"))
     # With the lighting model given too, nothing is measured on the photos.
-    rep = pipeline.run(bpy.context.scene, pipeline.Options(object_name="Subject", texture_size=32, max_iter=1,
-                                                           lam=2.0, working_res_mp=0.05, out_dir=str(tmp_path),
-                                                           lighting="shared", occlusion=False))
+    rep = pipeline.run(
+        bpy.context.scene,
+        pipeline.Options(
+            object_name="Subject",
+            texture_size=32,
+            max_iter=1,
+            lam=2.0,
+            working_res_mp=0.05,
+            out_dir=str(tmp_path),
+            lighting="shared",
+            occlusion=False,
+        ),
+    )
     with open(tmp_path / "report.json") as fh:
         params = json.load(fh)["parameters"]
     assert params["lambda"] == 2.0 and params["lambda_auto"] is False and params["lighting_variation"] is None

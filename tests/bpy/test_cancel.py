@@ -1,4 +1,5 @@
 """A cancel at every step of a run leaves the earlier outputs or the new ones, never a mix; the .blend is saved last."""
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,7 @@ def saved_scene(tmp_path):
 
 
 def options(out, cameras, **kw):
-    return pipeline.Options(out_dir=str(out), method="texture", texture_size=16, max_iter=2,
-                            camera_names=cameras, **kw)
+    return pipeline.Options(out_dir=str(out), method="texture", texture_size=16, max_iter=2, camera_names=cameras, **kw)
 
 
 def test_a_cancel_at_every_check_leaves_the_earlier_outputs_and_the_save_comes_last(tmp_path):
@@ -49,33 +49,34 @@ def test_a_cancel_at_every_check_leaves_the_earlier_outputs_and_the_save_comes_l
 
     def progress(fraction, message):
         stage["now"] = message.split(":")[0]
-        if message == "write: saving the .blend":   # the files are in place before the .blend is saved
+        if message == "write: saving the .blend":  # the files are in place before the .blend is saved
             stage["saving"] = outputs(out)
 
     tried = []
     for k in range(1, 1000):
         calls = []
 
-        def cancel():
+        def cancel(calls=calls, k=k):
             calls.append(stage["now"])
             return len(calls) == k
+
         try:
             report = pipeline.run(s.scene, new_options, progress=progress, cancel=cancel)
         except Cancelled:
             tried.append(calls[-1])
-            assert outputs(out) == earlier, f"cancelled at check {k} ({calls[-1]})"   # no staging folder either
+            assert outputs(out) == earlier, f"cancelled at check {k} ({calls[-1]})"  # no staging folder either
             assert scene_state() == state, f"cancelled at check {k} ({calls[-1]})"
             assert blend.read_bytes() == blend_bytes
             assert stage["saving"] is None
             continue
         break
-    assert len(calls) == k - 1          # the run that went through was cancelled at none of its checks
+    assert len(calls) == k - 1  # the run that went through was cancelled at none of its checks
     assert {"gather", "bake", "solve", "fuse", "write"} <= set(tried), tried
 
     new = outputs(out)
-    assert stage["saving"] == new                   # every new file was in place when the save began
+    assert stage["saving"] == new  # every new file was in place when the save began
     listed = json.loads(new["report.json"])["files"]
-    assert sorted(new) == sorted(listed)            # the new run's files, only them
+    assert sorted(new) == sorted(listed)  # the new run's files, only them
     assert f"views/{names[3]}.exr" in new and f"views/{names[0]}.exr" not in new
     assert all(new[p] != earlier[p] for p in new if p in earlier)
     assert report.saved_blend == str(blend) and blend.read_bytes() != blend_bytes
@@ -90,6 +91,7 @@ def test_ctrl_c_after_the_files_are_in_place_says_so(tmp_path, capsys, at):
     def progress(fraction, message):
         if message == at:
             raise KeyboardInterrupt
+
     with pytest.raises(Cancelled) as info:
         pipeline.run(s.scene, options(out, None, save_blend=True), progress=progress)
     assert info.value.written == str(out)
@@ -104,7 +106,7 @@ def test_a_blend_that_cannot_be_saved_is_one_error_after_the_files(tmp_path):
     s, blend = saved_scene(tmp_path)
     out = tmp_path / "out"
     blend.unlink()
-    blend.mkdir()   # a folder where the .blend was: saving fails, for root too
+    blend.mkdir()  # a folder where the .blend was: saving fails, for root too
     # Blender 4.2 would move that folder aside as the .blend1 backup: a non-empty folder there stops it.
     (blend.parent / (blend.name + "1")).mkdir()
     (blend.parent / (blend.name + "1") / "keep").write_bytes(b"")
@@ -113,4 +115,3 @@ def test_a_blend_that_cannot_be_saved_is_one_error_after_the_files(tmp_path):
     assert str(info.value).startswith(f"the new outputs are in {out}, but the .blend could not be saved: ")
     assert "Traceback" not in str(info.value)
     assert (out / "report.json").is_file()
-

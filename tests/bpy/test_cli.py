@@ -1,4 +1,5 @@
 """The headless contract, run as real subprocesses: ``python -m blender_addon`` and the ``-P`` script path."""
+
 from __future__ import annotations
 
 import hashlib
@@ -37,20 +38,27 @@ def digest(path):
 
 def run_cli(*args, cwd=ROOT):
     env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "blender_addon", *map(str, args)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "blender_addon", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def run_script(blend, *args):
     """As ``blender -b BLEND -P blender_addon/cli.py -- ARGS``: Blender opens the file, then runs the script."""
     script = os.path.join(ROOT, "blender_addon", "cli.py")
-    code = ("import runpy, sys, bpy\n"
-            f"bpy.ops.wm.open_mainfile(filepath={str(blend)!r})\n"
-            f"sys.argv = ['blender', '-b', {str(blend)!r}, '-P', {script!r}, '--', *{list(map(str, args))!r}]\n"
-            f"runpy.run_path({script!r}, run_name='__main__')\n")
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}   # the script must find the package itself
-    return subprocess.run([sys.executable, "-c", code], cwd="/", env=env, capture_output=True, text=True,
-                          timeout=300)
+    code = (
+        "import runpy, sys, bpy\n"
+        f"bpy.ops.wm.open_mainfile(filepath={str(blend)!r})\n"
+        f"sys.argv = ['blender', '-b', {str(blend)!r}, '-P', {script!r}, '--', *{list(map(str, args))!r}]\n"
+        f"runpy.run_path({script!r}, run_name='__main__')\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the script must find the package itself
+    return subprocess.run([sys.executable, "-c", code], cwd="/", env=env, capture_output=True, text=True, timeout=300)
 
 
 def error_lines(proc):
@@ -64,8 +72,9 @@ def test_python_m_writes_the_promised_files_and_leaves_the_blend(tmp_path):
     p = run_cli(blend, *FAST, "--out", out)
     assert p.returncode == 0, p.stderr
     names = [c.name for c in s.cameras]
-    assert files_under(out) == sorted(["Target_albedo.exr", "lighting.json", "report.json", "views"]
-                                      + [f"views/{n}.exr" for n in names])
+    assert files_under(out) == sorted(
+        ["Target_albedo.exr", "lighting.json", "report.json", "views"] + [f"views/{n}.exr" for n in names]
+    )
     a, ch = read_exr(out / "Target_albedo.exr")
     assert a.shape == (16, 16, 4) and ch == ["R", "G", "B", "A"]
     progress = [line for line in p.stdout.splitlines() if line.startswith("delight:")]
@@ -77,8 +86,7 @@ def test_blender_P_script_path_takes_the_same_options(tmp_path):
     blend, s = save_scene(tmp_path)
     before = digest(blend)
     out = tmp_path / "out"
-    p = run_script(blend, *FAST, "--cameras", s.cameras[0].name, s.cameras[2].name, "--lambda", "2.5",
-                   "--out", out)
+    p = run_script(blend, *FAST, "--cameras", s.cameras[0].name, s.cameras[2].name, "--lambda", "2.5", "--out", out)
     assert p.returncode == 0, p.stderr
     report = json.loads((out / "report.json").read_text())
     assert [c["name"] for c in report["cameras"]] == [s.cameras[0].name, s.cameras[2].name]
@@ -92,8 +100,9 @@ def photos_in_views(tmp_path):
     s = build_scene(str(tmp_path), photo=None, prefix="cam_0", suffix="")
     (tmp_path / "views").mkdir()
     for i, cam in enumerate(s.cameras):
-        set_background(cam, make_image(cam.name, synth_photo(64, 48, seed=i), kind="exr",
-                                       folder=str(tmp_path / "views")))
+        set_background(
+            cam, make_image(cam.name, synth_photo(64, 48, seed=i), kind="exr", folder=str(tmp_path / "views"))
+        )
     blend = str(tmp_path / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
     return blend, {p: (tmp_path / p).read_bytes() for p in files_under(tmp_path) if p.startswith("views/")}
@@ -101,14 +110,15 @@ def photos_in_views(tmp_path):
 
 def test_default_out_is_a_folder_of_its_own_and_reruns_replace_it(tmp_path):
     blend, photos = photos_in_views(tmp_path)
-    for _ in range(2):   # the second run replaces Delight's own files without --overwrite
+    for _ in range(2):  # the second run replaces Delight's own files without --overwrite
         p = run_cli(blend, *FAST)
         assert p.returncode == 0, p.stderr
     out = tmp_path / "delight_Target"
-    assert files_under(out) == sorted(["Target_albedo.exr", "lighting.json", "report.json", "views"]
-                                      + [f"views/cam_0{i}.exr" for i in range(4)])
+    assert files_under(out) == sorted(
+        ["Target_albedo.exr", "lighting.json", "report.json", "views"] + [f"views/cam_0{i}.exr" for i in range(4)]
+    )
     assert {p: (tmp_path / p).read_bytes() for p in photos} == photos
-    assert sorted(files_under(tmp_path / "views")) == sorted(p[len("views/"):] for p in photos)
+    assert sorted(files_under(tmp_path / "views")) == sorted(p[len("views/") :] for p in photos)
 
 
 @pytest.mark.parametrize("overwrite", [[], ["--overwrite"]])
@@ -120,7 +130,7 @@ def test_outputs_over_the_photos_are_refused(tmp_path, overwrite):
     errors = error_lines(p)
     photo = str(tmp_path / "views" / "cam_00.exr")
     assert len(errors) == 1 and "would overwrite the input" in errors[0] and errors[0].count(photo) == 2, errors
-    assert not any("bake" in line for line in p.stdout.splitlines())    # refused before the bake
+    assert not any("bake" in line for line in p.stdout.splitlines())  # refused before the bake
     assert sorted(files_under(tmp_path)) == sorted(["scene.blend", "views", *photos])
     assert {p: (tmp_path / p).read_bytes() for p in photos} == photos and digest(blend) == before
 
@@ -148,13 +158,13 @@ def test_unwritable_out_is_one_error_before_the_bake(tmp_path):
     try:
         try:
             (locked / "probe").write_text("")
-            chmod_works = False   # root ignores folder permissions
+            chmod_works = False  # root ignores folder permissions
             (locked / "probe").unlink()
         except PermissionError:
             chmod_works = True
         if chmod_works:
             out, message = locked / "out", "permission denied; choose another output folder"
-        else:   # a path under a regular file fails for anyone
+        else:  # a path under a regular file fails for anyone
             out, message = tmp_path / "scene.blend" / "out", "is a file, not a folder"
         p = run_cli(blend, *FAST, "--out", out)
     finally:
@@ -173,12 +183,30 @@ def test_lighting_json_schema_is_that_of_python_m_core(tmp_path):
         from test_bundle_cli import make_problem
     finally:
         sys.path.remove(os.path.join(ROOT, "tests"))
-    from core.io.bundle import save_bundle   # the package test_bundle_cli builds problems with
+    from core.io.bundle import save_bundle  # the package test_bundle_cli builds problems with
+
     save_bundle(tmp_path / "p.npz", make_problem())
     env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
-    p = subprocess.run([sys.executable, "-m", "core", "solve", str(tmp_path / "p.npz"), "--out", str(tmp_path / "core"),
-                        "--max-iter", "1", "--domain", "texture"], cwd=ROOT, env=env, capture_output=True,
-                       text=True, timeout=300)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "core",
+            "solve",
+            str(tmp_path / "p.npz"),
+            "--out",
+            str(tmp_path / "core"),
+            "--max-iter",
+            "1",
+            "--domain",
+            "texture",
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 0, p.stderr
     blend, _ = save_scene(tmp_path)
     p = run_cli(blend, "--method", "texture", "--texture-size", "16", "--max-iter", "1", "--out", tmp_path / "addon")
@@ -192,6 +220,7 @@ def test_lighting_json_schema_is_that_of_python_m_core(tmp_path):
         if isinstance(x, list):
             return [schema(v) for v in x[:1]]
         return "number" if isinstance(x, (int, float)) else type(x).__name__
+
     assert schema(addon) == schema(core)
     assert list(addon) == ["sh_basis", "channels", "normals", "method", "views"]
     for key in ("sh_basis", "channels", "normals", "method"):
@@ -248,12 +277,15 @@ def test_hostile_camera_names_stay_inside_out(tmp_path):
     assert not (tmp_path.parent / "x.exr").exists() and not (tmp_path / "x.exr").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--object", "Nope"], "Nope"),
-    (["--cameras", "nocam"], "nocam"),
-    (["--images", "/no/such/folder"], "/no/such/folder"),
-    (["--texture-size", "3"], "texture size"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--object", "Nope"], "Nope"),
+        (["--cameras", "nocam"], "nocam"),
+        (["--images", "/no/such/folder"], "/no/such/folder"),
+        (["--texture-size", "3"], "texture size"),
+    ],
+)
 def test_bad_input_exits_nonzero_with_one_line_and_writes_nothing(tmp_path, args, message):
     blend, _ = save_scene(tmp_path)
     before = digest(blend)
@@ -289,18 +321,25 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
     assert not (tmp_path / "out").exists() and digest(blend) == before
 
 
-@pytest.mark.parametrize("exc, line", [
-    (MemoryError(), ("error: out of memory: lower the working resolution (--working-res) or the texture size "
-                     "(--texture-size)")),
-    (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
-])
+@pytest.mark.parametrize(
+    "exc, line",
+    [
+        (
+            MemoryError(),
+            ("error: out of memory: lower the working resolution (--working-res) or the texture size (--texture-size)"),
+        ),
+        (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
+    ],
+)
 def test_any_failure_is_one_error_line_and_a_traceback_only_with_debug(tmp_path, monkeypatch, capsys, exc, line):
     from blender_addon import cli, pipeline
+
     blend, _ = save_scene(tmp_path)
     before = digest(blend)
 
-    def fail(*args, **kwargs):   # the run fails as it would on a machine out of memory, or with a bug
+    def fail(*args, **kwargs):  # the run fails as it would on a machine out of memory, or with a bug
         raise exc
+
     monkeypatch.setattr(pipeline, "run", fail)
     argv = [blend, *FAST, "--out", str(tmp_path / "out")]
     assert cli.main(argv) == 1
@@ -323,8 +362,9 @@ def test_fixture_scene_is_delit_better_than_plain_projection(tmp_path):
         sys.path.remove(os.path.join(ROOT, "blend_fixtures"))
     from blender_addon.core.evaluate.metrics import scaled_rmse
 
-    info = make_fixtures.generate("lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8,
-                                  texture_size=64)
+    info = make_fixtures.generate(
+        "lambert_sky", str(tmp_path), resolution=(128, 96), n_cameras=8, samples=8, texture_size=64
+    )
     obj = info["mesh"]["object"]
     blend = tmp_path / "lambert_sky" / "scene.blend"
     gt = read_exr(tmp_path / "lambert_sky" / "albedo_gt.exr")[0]

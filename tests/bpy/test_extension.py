@@ -1,5 +1,6 @@
 """Build the Linux extension zip as the README does, install it into the running bpy (Blender 4.2 or 5.2)
 under a temporary BLENDER_USER_RESOURCES, enable it and run the operator, in a subprocess."""
+
 from __future__ import annotations
 
 import json
@@ -21,7 +22,7 @@ import build_extension  # noqa: E402
 
 # Runs in a fresh interpreter. scipy and OpenEXR must come from the wheels the
 # extension installed, not from this venv: a finder refuses them elsewhere.
-CHILD = r'''
+CHILD = r"""
 import importlib.machinery, json, os, sys
 
 SHIPPED = ("scipy", "OpenEXR", "Imath")
@@ -55,7 +56,7 @@ print("RESULT " + json.dumps({
     "base_color": bpy.data.objects["Target"].material_slots[0].material.node_tree.nodes["Principled BSDF"]
         .inputs["Base Color"].links[0].from_node.name,
 }))
-'''
+"""
 
 
 def builder_python():
@@ -68,8 +69,19 @@ def builder_python():
 def extension_zip(tmp_path_factory):
     out = tmp_path_factory.mktemp("dist")
     # Downloaded wheels are cached in the git-ignored build folder (the default --wheels-dir).
-    p = subprocess.run([builder_python(), os.path.join(ROOT, "tools", "build_extension.py"),
-                        "--platforms", "linux-x64", "--out", str(out)], capture_output=True, text=True, timeout=900)
+    p = subprocess.run(
+        [
+            builder_python(),
+            os.path.join(ROOT, "tools", "build_extension.py"),
+            "--platforms",
+            "linux-x64",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     zips = sorted(str(x) for x in out.glob("*.zip"))
     assert [os.path.basename(z) for z in zips] == ["delight-0.1.0-linux_x64.zip"]
@@ -85,7 +97,7 @@ def test_zip_holds_the_add_on_the_real_core_and_the_wheels(extension_zip):
     assert {"__init__.py", "operator.py", "pipeline.py", "core/__init__.py", "core/solve/solver.py"} <= set(names)
     # core is real files, not a symlink entry (mode bits 0o120000).
     assert (infos["core/solve/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
-    wheels = sorted(n[len("wheels/"):] for n in names if n.startswith("wheels/"))
+    wheels = sorted(n[len("wheels/") :] for n in names if n.startswith("wheels/"))
     # One wheel per package and Blender Python (3.11: Blender 4.2-5.0; 3.13: 5.1-5.2), all for Linux x64,
     # at the versions requirements.txt pins.
     pins = dict(r.split("==") for r in build_extension.shipped_requirements())
@@ -108,11 +120,17 @@ def test_installed_extension_runs_the_operator(extension_zip, tmp_path):
     out = tmp_path / "out"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     env.update(BLENDER_USER_RESOURCES=str(user), OPENBLAS_NUM_THREADS="1")
-    p = subprocess.run([sys.executable, "-c", CHILD, extension_zip, blend, str(out)], cwd=str(tmp_path),
-                       env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [sys.executable, "-c", CHILD, extension_zip, blend, str(out)],
+        cwd=str(tmp_path),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     line = next(x for x in p.stdout.splitlines() if x.startswith("RESULT "))
-    r = json.loads(line[len("RESULT "):])
+    r = json.loads(line[len("RESULT ") :])
     assert r["run"] == ["FINISHED"]
     ext = str(user / "extensions")
     for key in ("addon", "scipy", "openexr", "core"):

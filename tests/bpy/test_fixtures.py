@@ -2,6 +2,7 @@
 
 Also checks that the checked-in fixtures are complete and consistent with their scene.json (no rendering).
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -83,10 +84,10 @@ def test_user_file_has_mesh_cameras_photos_and_no_ground_truth(small_scene, mf):
         assert len(cam.data.background_images) == 1
         img = cam.data.background_images[0].image
         assert img is not None and img.packed_file is None
-        assert img.filepath.startswith("//photos/"), img.filepath       # relative to the .blend
+        assert img.filepath.startswith("//photos/"), img.filepath  # relative to the .blend
         path = bpy.path.abspath(img.filepath)
         assert os.path.isfile(path)
-        assert tuple(img.size) == RES                                    # it loads, at the photo size
+        assert tuple(img.size) == RES  # it loads, at the photo size
         assert img.has_data
         assert img.colorspace_settings.name == "Linear Rec.709"
 
@@ -100,7 +101,7 @@ def test_ground_truth_texture(small_scene, mf):
     assert gt.shape == (TEX, TEX, 4)
     inside = gt[..., 3] > 0.5
     assert set(np.unique(gt[..., 3])) == {0.0, 1.0}
-    assert 0.3 < inside.mean() < 0.9                                   # the UV islands fill a fair part of the map
+    assert 0.3 < inside.mean() < 0.9  # the UV islands fill a fair part of the map
     assert gt_info["overlapping_texels"] == 0
     # Piecewise constant: inside the islands, exactly the region albedos (stored as half floats).
     regions = np.array(list(mf.REGION_ALBEDO.values()), dtype=np.float16).astype(np.float32)
@@ -116,15 +117,15 @@ def test_photos_are_plausible(small_scene, mf):
     scene_dir, record = small_scene
     for cam in record["cameras"]:
         photo = mf.read_exr(os.path.join(scene_dir, cam["photo"]))
-        assert photo.shape == (RES[1], RES[0], 4)                       # RGBA, transparent film
+        assert photo.shape == (RES[1], RES[0], 4)  # RGBA, transparent film
         alpha = photo[..., 3]
         obj = alpha > 0.99
         assert 0.05 < obj.mean() < 0.8, f"{cam['name']}: the object covers {obj.mean():.2f} of the frame"
         rgb = photo[obj][:, :3]
         assert np.all(np.isfinite(rgb))
         assert 0.03 < rgb.mean() < 1.0, f"{cam['name']}: mean radiance {rgb.mean():.3f}"
-        assert (rgb.max(axis=1) <= 0.005).mean() < 0.05                 # not black
-        assert (rgb.min(axis=1) >= 1.0).mean() < 0.05                   # not burnt out
+        assert (rgb.max(axis=1) <= 0.005).mean() < 0.05  # not black
+        assert (rgb.min(axis=1) >= 1.0).mean() < 0.05  # not burnt out
 
 
 @needs_fixture_maker
@@ -143,13 +144,13 @@ def test_scene_json_cameras_match_the_blend_file(small_scene):
         np.testing.assert_allclose(np.array(cam.matrix_world), rec["matrix_world"], atol=1e-5)
         K, R, t = (np.array(rec[k]) for k in ("K_core", "R_core", "t_core"))
         pc = pts @ R.T + t
-        assert np.all(pc[:, 2] > 0)                                     # the object is in front of every camera
+        assert np.all(pc[:, 2] > 0)  # the object is in front of every camera
         proj = pc @ K.T
         xy = proj[:, :2] / proj[:, 2:]
         ref = []
         for p in pts:
-            ndc = world_to_camera_view(scene, cam, Vector(p))           # (0,0) bottom-left, (1,1) top-right
-            ref.append((ndc.x * w - 0.5, (1.0 - ndc.y) * h - 0.5))      # core: pixel centres at integers, y down
+            ndc = world_to_camera_view(scene, cam, Vector(p))  # (0,0) bottom-left, (1,1) top-right
+            ref.append((ndc.x * w - 0.5, (1.0 - ndc.y) * h - 0.5))  # core: pixel centres at integers, y down
         np.testing.assert_allclose(xy, np.array(ref), atol=2e-3)
 
 
@@ -221,9 +222,21 @@ def test_per_view_ground_truth_is_the_texture_through_the_uv_map(small_scene, mf
     assert agree / total > 0.9, f"only {agree}/{total} projected vertices see their own texel's albedo"
 
 
-SCENES = ("lambert_sky", "photo_sun", "photo_sun_coarse", "varying_light", "torus_patches", "bowl_checker",
-          "rock_photo", "rock_coarse", "stairs_noise", "suzanne_exposure", "torus_varying_sun", "bowl_jitter",
-          "stairs_capture")
+SCENES = (
+    "lambert_sky",
+    "photo_sun",
+    "photo_sun_coarse",
+    "varying_light",
+    "torus_patches",
+    "bowl_checker",
+    "rock_photo",
+    "rock_coarse",
+    "stairs_noise",
+    "suzanne_exposure",
+    "torus_varying_sun",
+    "bowl_jitter",
+    "stairs_capture",
+)
 
 
 def test_every_scene_is_checked(mf):

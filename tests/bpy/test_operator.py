@@ -1,4 +1,5 @@
 """The operator and panel, registered in real Blender (background mode: INVOKE runs in-line)."""
+
 from __future__ import annotations
 
 import contextlib
@@ -16,8 +17,14 @@ from scene_state import files_under, scene_state  # noqa: E402
 import blender_addon  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.errors import Cancelled  # noqa: E402
-from blender_addon.operator import (Job, begin_progress, draw_status_bar, end_progress, get_status,  # noqa: E402
-                                    progress_bar)
+from blender_addon.operator import (  # noqa: E402
+    Job,
+    begin_progress,
+    draw_status_bar,
+    end_progress,
+    get_status,  # noqa: E402
+    progress_bar,
+)
 from blender_addon.panel import VIEW3D_PT_delight, operator_settings  # noqa: E402
 
 pytestmark = pytest.mark.bpy
@@ -51,8 +58,15 @@ def test_operator_options_reach_the_pipeline(tmp_path):
     for cam in s.cameras[:2]:
         coll.objects.link(cam)
     out = tmp_path / "out"
-    res = bpy.ops.delight.run(object_name="Target", cameras="COLLECTION", camera_collection="Cams",
-                              method="project", texture_size=16, working_res=0.001, out_dir=str(out))
+    res = bpy.ops.delight.run(
+        object_name="Target",
+        cameras="COLLECTION",
+        camera_collection="Cams",
+        method="project",
+        texture_size=16,
+        working_res=0.001,
+        out_dir=str(out),
+    )
     assert res == {"FINISHED"}
     report = json.loads((out / "report.json").read_text())
     assert [c["name"] for c in report["cameras"]] == [c.name for c in s.cameras[:2]]
@@ -76,7 +90,7 @@ def test_operator_out_dir_relative_to_an_unsaved_file_is_refused(tmp_path):
     build_scene(str(tmp_path))
     before = scene_state()
     with pytest.raises(RuntimeError, match="not saved"):
-        bpy.ops.delight.run(method="project", texture_size=16)   # default out_dir: beside the .blend
+        bpy.ops.delight.run(method="project", texture_size=16)  # default out_dir: beside the .blend
     assert scene_state() == before
 
 
@@ -95,7 +109,7 @@ def test_worker_job_runs_and_cancels_without_touching_the_scene(tmp_path):
     before = scene_state()
 
     job = Job(pipeline.prepare(s.scene, opts))
-    job.cancel()                                   # Esc before the worker starts its first check
+    job.cancel()  # Esc before the worker starts its first check
     job.start().join(60)
     assert job.done and isinstance(job.error, Cancelled) and job.computed is None
     assert scene_state() == before and not (tmp_path / "out").exists()
@@ -105,8 +119,8 @@ def test_worker_job_runs_and_cancels_without_touching_the_scene(tmp_path):
     assert job.done and job.error is None
     messages = job.poll()
     assert messages and messages[-1][0] == pytest.approx(0.95)
-    assert all(0.3 <= f <= 0.95 for f, _ in messages)   # the worker's share: solve and fuse
-    assert scene_state() == before                 # the worker never writes
+    assert all(0.3 <= f <= 0.95 for f, _ in messages)  # the worker's share: solve and fuse
+    assert scene_state() == before  # the worker never writes
     rep = pipeline.finish(s.scene, job.prepared, job.computed)
     assert rep.iterations >= 1 and (tmp_path / "out" / "Target_albedo.exr").is_file()
 
@@ -122,6 +136,7 @@ def test_worker_job_cancelled_mid_solve(tmp_path):
         real_put(item)
         if item[1].startswith("solve:") and job.messages.qsize() > 1:
             job.cancel()
+
     job.messages.put = put
     job.start().join(120)
     assert isinstance(job.error, Cancelled)
@@ -159,14 +174,15 @@ def test_unregister_removes_everything():
 def test_working_res_downscales_the_photos(tmp_path):
     build_scene(str(tmp_path))
     out = tmp_path / "out"
-    assert bpy.ops.delight.run(method="project", texture_size=16, working_res=0.001, out_dir=str(out)) \
-        == {"FINISHED"}
+    assert bpy.ops.delight.run(method="project", texture_size=16, working_res=0.001, out_dir=str(out)) == {"FINISHED"}
     from blender_addon.core.io.exr import read_exr
+
     v, _ = read_exr(out / "views" / "view0_cam.exr")
     assert v.shape[0] * v.shape[1] <= 1000 and np.isclose(v.shape[1] / v.shape[0], 64 / 48, rtol=0.1)
 
 
 # -- the progress bar ---------------------------------------------------------------------------------
+
 
 def status_bar_hooked() -> bool:
     """Whether the status bar draws our bar (the draw functions appended to its header)."""
@@ -179,7 +195,7 @@ def test_progress_bar_follows_a_run_and_leaves_the_status_bar_after_it(tmp_path)
     assert progress_bar() is None and not status_bar_hooked()
     opts = pipeline.Options(method="texture", texture_size=16, max_iter=3, out_dir=str(tmp_path / "out"))
     begin_progress(max_iter=opts.max_iter)
-    state = begin_progress(max_iter=opts.max_iter)   # a second start replaces the first: one bar
+    state = begin_progress(max_iter=opts.max_iter)  # a second start replaces the first: one bar
     assert status_bar_hooked()
     assert bpy.types.STATUSBAR_HT_header.draw._draw_funcs.count(draw_status_bar) == 1
     assert progress_bar() == (0.0, "starting")
@@ -201,7 +217,7 @@ def test_progress_bar_follows_a_run_and_leaves_the_status_bar_after_it(tmp_path)
 
     end_progress()
     assert progress_bar() is None and not status_bar_hooked()
-    end_progress()                                   # twice is harmless
+    end_progress()  # twice is harmless
 
 
 def test_unregister_removes_the_status_bar_hook_of_a_run_that_goes():
@@ -222,6 +238,7 @@ def test_a_failed_or_cancelled_in_line_run_leaves_no_bar(tmp_path):
 
 
 # -- re-running, undo and Adjust Last Operation --------------------------------------------------------
+
 
 @contextlib.contextmanager
 def in_the_3d_view():
@@ -250,7 +267,7 @@ def test_pressing_delight_twice_with_the_panels_defaults_replaces_the_first_run(
     build_scene(str(tmp_path))
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     bpy.context.scene.delight.target = bpy.data.objects["Target"]
-    settings = operator_settings(bpy.context.scene.delight)   # what the panel's button passes
+    settings = operator_settings(bpy.context.scene.delight)  # what the panel's button passes
     out = tmp_path / "delight_Target"
     assert bpy.ops.delight.run("INVOKE_DEFAULT", **settings) == {"FINISHED"}
     first = json.loads((out / "report.json").read_text())
@@ -275,7 +292,7 @@ def test_undo_then_run_again(tmp_path):
         ran = delight_state()
         assert ran[0] == ["Target_albedo"]
         bpy.ops.ed.undo()
-        assert scene_state() == before                  # the run is undone; its files stay
+        assert scene_state() == before  # the run is undone; its files stay
         assert (out / "report.json").is_file()
         press_delight(method="texture", texture_size=16, max_iter=3)
         assert delight_state() == ran
@@ -303,20 +320,27 @@ def test_adjust_last_operation_reruns_with_the_changed_setting(tmp_path):
 
 # -- failures -------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("exc,message,traceback_on_console", [
-    (RuntimeError("boom"), "Delight: unexpected RuntimeError: boom (the traceback is in the system console)", True),
-    (MemoryError(), "Delight: out of memory: lower the Working resolution (MP) or the Texture size (px)", False),
-    (PermissionError(errno.EACCES, "Permission denied", "/some/photo.exr"),
-     "Delight: /some/photo.exr: permission denied", False),
-])
+
+@pytest.mark.parametrize(
+    "exc,message,traceback_on_console",
+    [
+        (RuntimeError("boom"), "Delight: unexpected RuntimeError: boom (the traceback is in the system console)", True),
+        (MemoryError(), "Delight: out of memory: lower the Working resolution (MP) or the Texture size (px)", False),
+        (
+            PermissionError(errno.EACCES, "Permission denied", "/some/photo.exr"),
+            "Delight: /some/photo.exr: permission denied",
+            False,
+        ),
+    ],
+)
 @pytest.mark.parametrize("call", ["EXEC_DEFAULT", "INVOKE_DEFAULT"])
-def test_any_failure_is_one_line_in_the_report(tmp_path, monkeypatch, capsys, exc, message,
-                                               traceback_on_console, call):
+def test_any_failure_is_one_line_in_the_report(tmp_path, monkeypatch, capsys, exc, message, traceback_on_console, call):
     build_scene(str(tmp_path))
     before = scene_state()
 
-    def fail(*args, **kwargs):   # the run fails as it would on a machine out of memory, or with a bug
+    def fail(*args, **kwargs):  # the run fails as it would on a machine out of memory, or with a bug
         raise exc
+
     monkeypatch.setattr(pipeline, "run", fail)
     with pytest.raises(RuntimeError) as info:
         bpy.ops.delight.run(call, method="project", texture_size=16, out_dir=str(tmp_path / "out"))

@@ -2,6 +2,7 @@
 
 The bpy-free side of the spec is in tests/test_options.py.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,11 +22,25 @@ from blender_addon.panel import DelightSettings, operator_settings  # noqa: E402
 pytestmark = pytest.mark.bpy
 
 #: Operator property -> setting of the spec (the UI-only settings included).
-OPERATOR = {"object_name": "object_name", "cameras": "cameras", "camera_collection": "camera_collection",
-            "images_dir": "images_dir", "auto_lambda": "auto_lambda", "lam": "lam", "mu": "mu",
-            "max_iter": "max_iter", "working_res": "working_res_mp", "texture_size": "texture_size",
-            "method": "method", "out_dir": "out_dir", "overwrite": "overwrite", "albedo_lam": "albedo_lam",
-            "lighting": "lighting", "occlusion": "occlusion", "mask_clipped": "mask_clipped"}
+OPERATOR = {
+    "object_name": "object_name",
+    "cameras": "cameras",
+    "camera_collection": "camera_collection",
+    "images_dir": "images_dir",
+    "auto_lambda": "auto_lambda",
+    "lam": "lam",
+    "mu": "mu",
+    "max_iter": "max_iter",
+    "working_res": "working_res_mp",
+    "texture_size": "texture_size",
+    "method": "method",
+    "out_dir": "out_dir",
+    "overwrite": "overwrite",
+    "albedo_lam": "albedo_lam",
+    "lighting": "lighting",
+    "occlusion": "occlusion",
+    "mask_clipped": "mask_clipped",
+}
 
 #: Bad values: operator keywords, the command line's arguments, and the one message both give.
 BAD = [
@@ -66,10 +81,10 @@ def test_operator_properties_are_the_spec_and_do_not_clamp():
     for key, name in OPERATOR.items():
         prop, o = props[key], OPTIONS[name]
         _check_words_and_defaults(prop, o)
-        if o.kind == "float":   # any value reaches the run's check
+        if o.kind == "float":  # any value reaches the run's check
             assert prop.hard_min == -math.inf and prop.hard_max == math.inf, key
         if o.kind == "int":
-            assert prop.hard_min <= -2 ** 31 and prop.hard_max >= 2 ** 31 - 1, key
+            assert prop.hard_min <= -(2**31) and prop.hard_max >= 2**31 - 1, key
 
 
 def test_panel_properties_are_the_spec_with_its_hard_range():
@@ -77,17 +92,17 @@ def test_panel_properties_are_the_spec_with_its_hard_range():
     for key, prop in props.items():
         name = {"target": "object_name"}.get(key, OPERATOR.get(key, key))
         o = OPTIONS[name]
-        if prop.type == "POINTER":   # the mesh and the collection are picked, not typed
+        if prop.type == "POINTER":  # the mesh and the collection are picked, not typed
             assert prop.name == o.label and prop.description == o.help, key
             continue
         _check_words_and_defaults(prop, o)
         if o.kind in ("int", "float"):
             assert prop.hard_min == o.min, key
-            assert prop.hard_max == (o.max if o.max is not None else (math.inf if o.kind == "float" else 2 ** 31 - 1))
+            assert prop.hard_max == (o.max if o.max is not None else (math.inf if o.kind == "float" else 2**31 - 1))
     # Everything the panel hands over is an operator property of the same setting.
     s = bpy.context.scene.delight
     assert set(operator_settings(s)) == set(OPERATOR)
-    s.texture_size = 3                      # typed into the field: held at the range's end
+    s.texture_size = 3  # typed into the field: held at the range's end
     assert s.texture_size == 8
 
 

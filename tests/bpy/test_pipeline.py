@@ -1,4 +1,5 @@
 """The run end to end on a real bpy scene: files, image, material, re-run, cancel, errors."""
+
 from __future__ import annotations
 
 import json
@@ -13,9 +14,11 @@ from conftest import build_scene, new_material  # noqa: E402
 from scene_state import files_under, scene_state  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
+from blender_addon.core.errors import (  # noqa: E402
+    Cancelled,
+    DelightError,  # noqa: E402
+)
 from blender_addon.core.io.exr import read_exr  # noqa: E402
-from blender_addon.core.errors import Cancelled  # noqa: E402
-from blender_addon.core.errors import DelightError  # noqa: E402
 from blender_addon.core.io.names import safe_name, unique_names  # noqa: E402
 
 pytestmark = pytest.mark.bpy
@@ -63,12 +66,13 @@ def test_project_writes_the_promised_files(tmp_path):
 
     names = [c.name for c in s.cameras]
     assert rep.cameras == names
-    assert files_under(out) == sorted(["Target_albedo.exr", "lighting.json", "report.json", "views"]
-                                      + [f"views/{n}.exr" for n in names])
+    assert files_under(out) == sorted(
+        ["Target_albedo.exr", "lighting.json", "report.json", "views"] + [f"views/{n}.exr" for n in names]
+    )
     albedo, ch = read_exr(out / "Target_albedo.exr")
     assert ch == ["R", "G", "B", "A"] and albedo.shape == (N, N, 4) and albedo.dtype == np.float32
     a = albedo[..., 3]
-    assert set(np.unique(a)) == {0.0, 1.0}       # seen / filled
+    assert set(np.unique(a)) == {0.0, 1.0}  # seen / filled
     assert 0.05 < a.mean() < 0.95
     assert np.isfinite(albedo).all()
     # Project = the photos fused: every seen texel lies within the photos' range.
@@ -86,7 +90,7 @@ def test_project_writes_the_promised_files(tmp_path):
 
     light = json.loads((out / "lighting.json").read_text())
     assert [v["name"] for v in light["views"]] == names and len(light["sh_basis"]) == 9
-    assert all(v["sh"] is None for v in light["views"])        # project estimates no lighting
+    assert all(v["sh"] is None for v in light["views"])  # project estimates no lighting
     report = json.loads((out / "report.json").read_text())
     assert report["method"] == "project" and report["object"] == "Target"
     assert set(report["times_s"]) >= {"gather", "bake", "solve", "fuse", "write"}
@@ -119,10 +123,10 @@ def test_material_gets_our_node_and_keeps_the_original(tmp_path):
     assert uvnode.bl_idname == "ShaderNodeUVMap" and uvnode.uv_map == "UVMap"
     orig = nt.nodes["Orig Tex"]
     assert orig.image.name == "photo_bake"
-    assert not orig.outputs["Color"].links               # unlinked
+    assert not orig.outputs["Color"].links  # unlinked
     assert orig.parent is not None and orig.parent.label == "Delight: original"
     assert nt.nodes["Orig Mapping"].parent == orig.parent
-    assert nt.nodes["Orig Mapping"].outputs["Vector"].links[0].to_node == orig   # its own chain is intact
+    assert nt.nodes["Orig Mapping"].outputs["Vector"].links[0].to_node == orig  # its own chain is intact
 
 
 def test_material_is_created_when_the_mesh_has_none(tmp_path):
@@ -131,7 +135,7 @@ def test_material_is_created_when_the_mesh_has_none(tmp_path):
     mats = [sl.material for sl in s.obj.material_slots]
     assert [m.name for m in mats] == ["Target_material"]
     assert base_color_source(mats[0]).image.name == "Target_albedo"
-    assert not [n for n in mats[0].node_tree.nodes if n.bl_idname == "NodeFrame"]   # nothing to keep
+    assert not [n for n in mats[0].node_tree.nodes if n.bl_idname == "NodeFrame"]  # nothing to keep
 
 
 def test_rerun_replaces_our_nodes_instead_of_stacking(tmp_path):
@@ -179,9 +183,10 @@ def test_cancel_leaves_scene_and_folder_unchanged(tmp_path, stage):
         current["seen"].append(current["stage"])
 
     with pytest.raises(Cancelled):
-        pipeline.run(s.scene, options(out, method="texture"), progress=progress,
-                     cancel=lambda: current["stage"] == stage)
-    assert current["stage"] == stage           # honoured within that stage
+        pipeline.run(
+            s.scene, options(out, method="texture"), progress=progress, cancel=lambda: current["stage"] == stage
+        )
+    assert current["stage"] == stage  # honoured within that stage
     assert "write" not in current["seen"]
     assert scene_state() == before
     assert files_under(out) == ["keep.txt"]
@@ -212,14 +217,15 @@ def test_a_cancel_while_writing_keeps_the_earlier_outputs(tmp_path):
     def progress(fraction, message):
         current["stage"] = message.split(":")[0]
 
-    def cancel():   # the third check in the write stage: after some files were staged
+    def cancel():  # the third check in the write stage: after some files were staged
         if current["stage"] == "write":
             current["checks"] += 1
         return current["checks"] == 3
+
     with pytest.raises(Cancelled):
         pipeline.run(s.scene, options(out, texture_size=16), progress=progress, cancel=cancel)
     assert current["checks"] == 3
-    assert snapshot(out) == earlier            # the earlier files, byte for byte; no staging folder
+    assert snapshot(out) == earlier  # the earlier files, byte for byte; no staging folder
     assert scene_state() == state
 
 
@@ -233,7 +239,7 @@ def test_hostile_camera_names_stay_inside_out(tmp_path):
     assert sorted(rep.cameras) == sorted(hostile)
     everything = files_under(tmp_path)
     views = [p for p in files_under(out) if p.startswith("views/")]
-    assert len(views) == 4 and len(set(p.lower() for p in views)) == 4   # unique, even case-insensitively
+    assert len(views) == 4 and len(set(p.lower() for p in views)) == 4  # unique, even case-insensitively
     for p in files_under(out):
         assert os.path.realpath(out / p).startswith(os.path.realpath(out) + os.sep)
     assert not any(p.endswith("x.exr") and not p.startswith("deep/out/") for p in everything)
@@ -255,7 +261,7 @@ def test_no_camera_sees_the_mesh(tmp_path):
 
 def test_a_camera_that_misses_is_skipped_with_a_warning(tmp_path):
     s = build_scene(str(tmp_path))
-    s.cameras[1].rotation_euler = (0.0, 0.0, 0.0)   # looks straight down, away from the sphere
+    s.cameras[1].rotation_euler = (0.0, 0.0, 0.0)  # looks straight down, away from the sphere
     s.cameras[1].location = (0.0, 0.0, -20.0)
     bpy.context.view_layer.update()
     rep = pipeline.run(s.scene, options(tmp_path / "out"))
@@ -265,8 +271,12 @@ def test_a_camera_that_misses_is_skipped_with_a_warning(tmp_path):
 
 def test_bad_options_are_refused_before_reading_the_scene(tmp_path):
     s = build_scene(str(tmp_path))
-    for kw, match in ((dict(method="magic"), "method must be one of"), (dict(texture_size=4), "texture size"),
-                      (dict(lam=float("nan")), "lambda"), (dict(working_res_mp=0.0), "working resolution")):
+    for kw, match in (
+        (dict(method="magic"), "method must be one of"),
+        (dict(texture_size=4), "texture size"),
+        (dict(lam=float("nan")), "lambda"),
+        (dict(working_res_mp=0.0), "working resolution"),
+    ):
         with pytest.raises(DelightError, match=match):
             pipeline.run(s.scene, options(tmp_path / "out", **kw))
     assert not (tmp_path / "out").exists()

@@ -1,16 +1,28 @@
 """Scene -> arrays -> bake, against real Blender (and Cycles as the reference)."""
+
 from __future__ import annotations
 
 import os
 
+import bpy
 import numpy as np
 import pytest
-from conftest import (add_camera, add_image_plane, add_uv_sphere, build_scene, data_counts, make_image,
-                      render_cycles, set_background, set_render, synth_photo, write_png)
+from conftest import (
+    add_camera,
+    add_image_plane,
+    add_uv_sphere,
+    build_scene,
+    data_counts,
+    make_image,
+    render_cycles,
+    set_background,
+    set_render,
+    synth_photo,
+    write_png,
+)
 
-import bpy
-from blender_addon.core.geometry.bake import bake_views
 from blender_addon.core.errors import DelightError
+from blender_addon.core.geometry.bake import bake_views
 from blender_addon.core.io.photos import downscale, srgb_to_linear
 from blender_addon.scene import gather
 from core.io.exr import write_exr
@@ -48,8 +60,7 @@ def test_bake_matches_cycles_passes(case, tmp_path):
     obj.rotation_euler = (0.3, 0.2, 0.5)
     obj.scale = (1.0, 1.2, 0.9)
     bpy.context.view_layer.objects.active = obj
-    cam = add_camera("probe_cam", (4.0, -3.0, 1.5), look_at=(0.3, 0.0, 0.4), lens=45, sensor_fit=fit,
-                     shift=shift)
+    cam = add_camera("probe_cam", (4.0, -3.0, 1.5), look_at=(0.3, 0.0, 0.4), lens=45, sensor_fit=fit, shift=shift)
     set_background(cam, make_image("probe", synth_photo(w, h)))
     # An image plane and an occluder: our rays must ignore them (hidden from Cycles too).
     plane = add_image_plane(cam, make_image("plane_photo", synth_photo(w, h)))
@@ -99,8 +110,7 @@ def test_camera_frame_matches_blender_view_frame(fit, size, aspect):
 
     scene = set_render(*size, pixel_aspect=aspect)
     bpy.context.view_layer.objects.active = add_uv_sphere()
-    cam = add_camera("f_cam", (3.0, -4.0, 2.0), lens=40, sensor_fit=fit, shift=(0.07, -0.11),
-                     sensor=(30.0, 21.0))
+    cam = add_camera("f_cam", (3.0, -4.0, 2.0), lens=40, sensor_fit=fit, shift=(0.07, -0.11), sensor=(30.0, 21.0))
     set_background(cam, make_image("f", synth_photo(*size)))
     bpy.context.view_layer.update()
     camera = gather(scene).views[0].camera
@@ -114,7 +124,7 @@ def test_camera_frame_matches_blender_view_frame(fit, size, aspect):
 
 
 def test_mesh_arrays_are_evaluated_world_space():
-    scene = set_render(32, 24)
+    set_render(32, 24)
     obj = add_uv_sphere(radius=1.0, segments=12, rings=6)
     obj.location, obj.scale = (1.0, 2.0, 3.0), (2.0, 2.0, 2.0)
     mod = obj.modifiers.new("subdiv", "SUBSURF")
@@ -136,13 +146,14 @@ def test_mesh_arrays_are_evaluated_world_space():
 
 # --- photos -----------------------------------------------------------------------------------------
 
+
 def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
     scene = set_render(16, 12)
     obj = add_uv_sphere()
     bpy.context.view_layer.objects.active = obj
     cam = add_camera("p_cam", (6.0, 0.0, 0.0))
     codes = np.full((12, 16, 3), 188, np.uint8)
-    codes[0, 0] = (255, 0, 10)   # top-left pixel: checks the row order
+    codes[0, 0] = (255, 0, 10)  # top-left pixel: checks the row order
     codes[5, 7] = (4, 100, 250)
     path = write_png(str(tmp_path / "p.png"), codes)
     img = bpy.data.images.load(path)
@@ -239,6 +250,7 @@ def test_camera_selection(tmp_path):
 
 # --- errors: one clear message, nothing changed ------------------------------------------------------
 
+
 def _expect_error(match, fn, *args, **kw):
     before = data_counts()
     with pytest.raises(DelightError, match=match) as info:
@@ -323,8 +335,9 @@ def test_error_nan_in_exr_photo(tmp_path):
         write_exr(str(folder / "view1.exr"), bad)
         if where == "background":
             s.images["view1_cam"].reload()
-        _expect_error("camera 'view1_cam': its photo .* has 1 NaN or infinite pixels", gather, s.scene,
-                      images_dir=str(folder))
+        _expect_error(
+            "camera 'view1_cam': its photo .* has 1 NaN or infinite pixels", gather, s.scene, images_dir=str(folder)
+        )
 
 
 def test_error_photo_aspect_does_not_match(tmp_path):
@@ -341,8 +354,9 @@ def test_error_non_perspective_cameras_are_all_named(tmp_path):
     s = build_scene(str(tmp_path), n_cameras=4, size=(16, 12))
     s.cameras[0].data.type = "ORTHO"
     s.cameras[2].data.type = "PANO"
-    msg = _expect_error("only perspective cameras are supported", gather, s.scene,
-                        camera_names=[c.name for c in s.cameras])
+    msg = _expect_error(
+        "only perspective cameras are supported", gather, s.scene, camera_names=[c.name for c in s.cameras]
+    )
     assert "'view0_cam' (ortho)" in msg and "'view2_cam' (pano)" in msg
     # With all cameras, they are left out while two perspective ones remain.
     inputs = gather(s.scene)
@@ -377,8 +391,10 @@ def test_bake_cancel_and_progress(tmp_path):
 
 # --- background kinds and unusable cameras ------------------------------------------------------------
 
+
 def test_image_sequence_background_gives_each_camera_its_frame(tmp_path):
     from blender_addon.core.io.exr import write_exr
+
     s = build_scene(str(tmp_path), n_cameras=3, size=(16, 12), photo=None)
     frames = [np.full((12, 16, 3), 0.1 * (k + 1), np.float32) for k in range(3)]
     for k, f in enumerate(frames):
@@ -388,7 +404,7 @@ def test_image_sequence_background_gives_each_camera_its_frame(tmp_path):
     for k, cam in enumerate(s.cameras):
         bg = set_background(cam, seq)
         bg.image_user.frame_start, bg.image_user.frame_duration = 1, 3
-        bg.image_user.frame_offset = k        # camera k shows frame k + 1 at the scene's frame 1
+        bg.image_user.frame_offset = k  # camera k shows frame k + 1 at the scene's frame 1
     s.scene.frame_current = 1
     counts = data_counts()
     views = gather(s.scene).views
@@ -400,6 +416,7 @@ def test_image_sequence_background_gives_each_camera_its_frame(tmp_path):
 
 def test_movie_and_movie_clip_backgrounds_say_what_to_do(tmp_path):
     from blender_addon.core.io.exr import write_exr
+
     s = build_scene(str(tmp_path), n_cameras=2, size=(16, 12))
     movie = s.cameras[0].data.background_images[0].image
     movie.source = "MOVIE"
