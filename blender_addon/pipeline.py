@@ -153,11 +153,14 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     out_dir = os.path.abspath(
         bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath, inputs.object_name))
     )
+    # The outputs, uncompressed: an RGBA float32 albedo and one per view.
+    need = 16 * (int(options.texture_size) ** 2 + sum(v.photo.shape[0] * v.photo.shape[1] for v in inputs.views))
     _outputs.prepare_outputs(
         out_dir,
         _output_names(inputs.object_name, [v.name for v in inputs.views]),
         options.overwrite,
         _input_files(inputs),
+        need_bytes=need,
     )
     times["gather"] = time.perf_counter() - t
     check_cancel(cancel)

@@ -23,6 +23,7 @@ from core.io.outputs import (
     lighting_json,
     own_files,
     plan_outputs,
+    prepare_outputs,
     rgba,
     view_files,
     write_outputs,
@@ -359,3 +360,14 @@ def test_cli_reruns_refuses_foreign_files_and_unwritable_folders_before_the_solv
             os.chmod(locked, 0o700)
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 1 and len(lines) == 1 and "permission denied" in lines[0], r.stderr
+
+
+def test_outputs_larger_than_the_free_space_are_refused_before_anything_is_written(tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    free = shutil.disk_usage(tmp_path).free
+    with pytest.raises(DelightError, match=r"cannot write to .*the outputs need about .* MB free; free some space"):
+        prepare_outputs(out, ["albedo.exr"], need_bytes=free * 2)
+    assert not out.exists()
+    prepare_outputs(out, ["albedo.exr"], need_bytes=1)

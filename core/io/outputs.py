@@ -75,6 +75,7 @@ __all__ = [
     "REPORT",
     "NORMALS",
     "Plan",
+    "check_room",
     "view_files",
     "channel_names",
     "lighting_json",
@@ -349,8 +350,20 @@ def check_writable(out_dir) -> None:
             raise _cannot_write(place, exc) from None
 
 
-def prepare_outputs(out_dir, files, overwrite: bool = False, inputs=()) -> Plan:
-    """Every check before a run: :func:`plan_outputs`, :func:`check_inputs`, :func:`check_writable`.
+def check_room(out_dir, need_bytes: int) -> None:
+    """Raise :class:`DelightError` if the disk that will hold ``out_dir`` has less than ``need_bytes`` free."""
+    base = _nearest_existing(os.path.abspath(os.fspath(out_dir)))
+    free = shutil.disk_usage(base).free
+    if need_bytes > free:
+        raise DelightError(
+            f"cannot write to {out_dir}: the outputs need about {need_bytes / 1e6:.0f} MB and the "
+            f"disk has {free / 1e6:.0f} MB free; free some space or choose another output folder"
+        )
+
+
+def prepare_outputs(out_dir, files, overwrite: bool = False, inputs=(), need_bytes: int = 0) -> Plan:
+    """Every check before a run: :func:`plan_outputs`, :func:`check_inputs`, :func:`check_writable`,
+    and :func:`check_room` for ``need_bytes`` (an estimate of the outputs' size; 0: not checked).
 
     A clash with an input is reported first, whatever else is in the way.
     """
@@ -359,6 +372,8 @@ def prepare_outputs(out_dir, files, overwrite: bool = False, inputs=()) -> Plan:
     if foreign:
         raise foreign[0]
     check_writable(plan.out_dir)
+    if need_bytes:
+        check_room(plan.out_dir, need_bytes)
     return plan
 
 
