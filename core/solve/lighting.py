@@ -11,6 +11,9 @@ here, both used through :class:`core.solve.solver.SolverParams`:
   (exposure and white balance, 3 numbers per photo). :func:`shared_lighting_step`
   is its sigma-step: it alternates exact minimisations of the quadratic
   majorant in sigma and in the gains, so the MM keeps its descent.
+* ``lighting="coupled"``: free per view, held to such a shared lighting by a
+  quadratic prior that is part of the energy (:class:`Coupling`); between the
+  two. :func:`choose_lighting` picks it, or ``per_view`` when the light moves.
 * ``albedo_lam``: :func:`solve_two_stage` first estimates the lighting with a
   strong TV weight (which keeps shading out of the albedo but flattens its
   detail), then solves the albedo again with that lighting fixed and a weak TV

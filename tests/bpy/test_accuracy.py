@@ -67,11 +67,21 @@ def test_default_beats_projection_on_the_smallest_fixture(small_sky, tmp_path):
     inside = int(np.count_nonzero(gt[..., 3] > 0.5))
     # Measured: 7022 (project) and 7251 (texture: the bilinear splat reaches a few more) of 8600 inside texels.
     assert min(n_proj, n_ours) > 0.75 * inside
-    # Measured at 85eeb89 (defaults: lambda 5, delta 1e-3, 4 texture levels), R / G / B:
-    #   texture protocol: project 0.289 / 0.208 / 0.171, ours 0.098 / 0.089 / 0.051 (ratio of means 0.36);
-    #   views protocol:   project 0.259 / 0.183 / 0.154, ours 0.096 / 0.083 / 0.048 (ratio 0.38).
-    # (At 92296c3, before the new defaults, ours was 0.148 / 0.120 / 0.085, ratio 0.53.)
+    # Measured with the issue-13 defaults (occlusion-aware transfer, two stages, lighting coupled), R / G / B:
+    #   texture protocol: project 0.289 / 0.208 / 0.171, ours 0.062 / 0.053 / 0.035 (ratio of means 0.23);
+    #   views protocol:   project 0.259 / 0.183 / 0.154, ours 0.062 / 0.051 / 0.034 (ratio 0.25).
+    # (At 85eeb89, with the paper's model in one stage, ours was 0.098 / 0.089 / 0.051, ratio 0.36.)
     for ours, proj in ((ours_tex, proj_tex), (ours_views, proj_views)):
-        assert ours.mean() < 0.42 * proj.mean(), (ours, proj)
-        assert np.all(ours < 0.5 * proj), (ours, proj)
-    assert ours_tex.mean() < 0.09 and ours_views.mean() < 0.09, (ours_tex, ours_views)
+        assert ours.mean() < 0.3 * proj.mean(), (ours, proj)
+        assert np.all(ours < 0.35 * proj), (ours, proj)
+    assert ours_tex.mean() < 0.06 and ours_views.mean() < 0.06, (ours_tex, ours_views)
+
+
+def test_occlusion_and_two_stages_beat_the_papers_model(small_sky, tmp_path):
+    # The same scene with the paper's model and schedule (nu(n), one stage, lighting free per view):
+    # measured 0.089 / 0.085 / 0.049 against the default's 0.062 / 0.053 / 0.035. The sky is hidden from the
+    # plinth and the eye sockets, and one stage lets the lighting take part of the albedo.
+    paper, _, _, _ = score(small_sky, tmp_path / "paper", albedo_lam=None, occlusion=False, lighting="per_view")
+    ours, _, _, _ = score(small_sky, tmp_path / "texture")
+    assert ours.mean() < 0.8 * paper.mean(), (ours, paper)
+    assert np.all(ours < paper), (ours, paper)
