@@ -32,6 +32,8 @@ import argparse
 import os
 import sys
 
+from .core.options import OPTIONS, RUN_FIELDS
+
 __all__ = ["build_parser", "main", "script_argv", "options_from_args", "CLI_FIELDS"]
 
 
@@ -41,25 +43,8 @@ def script_argv(argv) -> list:
     return argv[argv.index("--") + 1 :] if "--" in argv else []
 
 
-#: The settings the command line takes, in the order of ``--help``.
-CLI_FIELDS = (
-    "object_name",
-    "camera_names",
-    "images_dir",
-    "lam",
-    "albedo_lam",
-    "lighting",
-    "occlusion",
-    "mask_clipped",
-    "mu",
-    "max_iter",
-    "working_res_mp",
-    "texture_size",
-    "method",
-    "out_dir",
-    "save_blend",
-    "overwrite",
-)
+#: The settings the command line takes (those of a run with a flag), in the order of ``--help``.
+CLI_FIELDS = tuple(name for name in RUN_FIELDS if OPTIONS[name].flag)
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:

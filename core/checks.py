@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DelightError
-from .geometry.texels import STRETCH_FACTOR, uv_stretched
+from .geometry.texels import STRETCH_FACTOR, triangle_areas, uv_stretched
 
 __all__ = ["NEGATIVE_MAX_SHARE", "check_photos", "check_uv_layout"]
 
@@ -105,9 +105,8 @@ def check_uv_layout(tri_uv, tri_pos, size) -> list:
     q = np.empty(tri_uv.shape, dtype=np.float64)
     q[..., 0] = tri_uv[..., 0] * n - 0.5
     q[..., 1] = (1.0 - tri_uv[..., 1]) * n - 0.5
-    e1, e2 = q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])  # texels
-    area = 0.5 * np.linalg.norm(np.cross(tri_pos[:, 1] - tri_pos[:, 0], tri_pos[:, 2] - tri_pos[:, 0]), axis=1)
+    uv_area, area = triangle_areas(tri_uv, tri_pos)
+    uv_area *= n * n  # texels
     total = float(area.sum())
     warnings = []
     if total <= 0:

@@ -14,6 +14,7 @@ from .texels import (
     texel_index,
     texel_of_uv,
     texture_layout,
+    triangle_areas,
     uv_of_texel,
     uv_stretched,
 )
@@ -32,6 +33,7 @@ __all__ = [
     "bilinear_texels",
     "texture_layout",
     "uv_stretched",
+    "triangle_areas",
     "STRETCH_FACTOR",
     "Correspondences",
     "find_correspondences",

@@ -29,6 +29,7 @@ __all__ = [
     "bilinear_texels",
     "texture_layout",
     "uv_stretched",
+    "triangle_areas",
     "STRETCH_FACTOR",
 ]
 
@@ -255,17 +256,23 @@ def _closest_on_boundary(qt, x, y):
     return lam
 
 
+def triangle_areas(tri_uv, tri_pos):
+    """Each triangle's area in the UV square and on the surface: ``(T,), (T,)``."""
+    tri_uv = np.asarray(tri_uv, dtype=np.float64)
+    tri_pos = np.asarray(tri_pos, dtype=np.float64)
+    e1, e2 = tri_uv[:, 1] - tri_uv[:, 0], tri_uv[:, 2] - tri_uv[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = 0.5 * np.linalg.norm(np.cross(tri_pos[:, 1] - tri_pos[:, 0], tri_pos[:, 2] - tri_pos[:, 0]), axis=1)
+    return uv_area, area
+
+
 def uv_stretched(tri_uv, tri_pos, factor=STRETCH_FACTOR):
     """(T,) bool: triangles whose UV area per surface area is ``factor`` times off the median.
 
     An n-gon whose corners lie in two UV islands is split into such triangles: they span the gap
     between the islands and cover texels that belong to other faces.
     """
-    tri_uv = np.asarray(tri_uv, dtype=np.float64)
-    tri_pos = np.asarray(tri_pos, dtype=np.float64)
-    e1, e2 = tri_uv[:, 1] - tri_uv[:, 0], tri_uv[:, 2] - tri_uv[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    area = 0.5 * np.linalg.norm(np.cross(tri_pos[:, 1] - tri_pos[:, 0], tri_pos[:, 2] - tri_pos[:, 0]), axis=1)
+    uv_area, area = triangle_areas(tri_uv, tri_pos)
     usable = (uv_area > 0) & (area > 0)
     if not usable.any():
         return np.zeros(len(tri_uv), dtype=bool)
