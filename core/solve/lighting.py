@@ -349,17 +349,30 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         and problem.texture.size > params.light_size
     ):
         light_problem = with_texture_size(problem, params.light_size)
-    first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
+    start = None
+    if params.light_start != "photos":
+        from .light_estimate import estimate_lighting
+
+        start = estimate_lighting(light_problem, "per_view" if params.lighting == "per_view" else "shared")
+    if params.light_start == "pairs_only":
+        sigma, stage = start, {"iterations": 0, "energy": [], "solved_size": None}
+    else:
+        light_params = replace(params, albedo_lam=None)
+        first = solve(light_problem, light_params, part(0.0, 0.4, "lighting"), cancel, start)
+        sigma = first.sigma
+        if params.light_edges > 0 and params.domain == "texture":
+            from .light_estimate import reweighted_lighting
+
+            sigma = reweighted_lighting(light_problem, first, light_params, part(0.4, 0.6, "lighting, edges"), cancel)
+        stage = {
+            "iterations": first.iterations,
+            "energy": first.energy[-1:],
+            "solved_size": first.info.get("solved_size"),
+        }
     second = solve_albedo(
-        problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
+        problem, sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
     )
-    second.info["lighting_stage"] = {
-        "iterations": first.iterations,
-        "energy": first.energy[-1:],
-        "solved_size": first.info.get("solved_size"),
-        "lam": params.lam,
-        "lighting": params.lighting,
-    }
+    second.info["lighting_stage"] = dict(stage, lam=params.lam, lighting=params.lighting, start=params.light_start)
     second.info["albedo_lam"] = params.albedo_lam
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second
