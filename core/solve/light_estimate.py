@@ -1,26 +1,27 @@
-"""A lighting estimate from how the brightness changes between neighbouring pixels.
+"""Lighting estimates that do not start from ``rho = I``, for the two-stage schedule.
 
-Two neighbouring pixels i, j of one photo that see the same albedo satisfy
+**From neighbouring pixels** (:func:`estimate_lighting`). Two neighbouring
+pixels i, j of one photo that see the same albedo satisfy
 ``I_i / s_i = I_j / s_j`` with the shading ``s = sigma . T`` (T the pixel's
-transfer: the paper's ``nu(n)`` or the occlusion-aware one). So
+transfer: the paper's ``nu(n)`` or the occlusion-aware one), so
+``log(I_j / I_i) = log(s_j / s_i)`` whatever the albedo and whatever the
+photo's gain (exposure, white balance), which cancels. Every pair of pixels a
+few steps apart along a row or a column gives one equation in the lighting;
+with its constant coefficient (index 3) pinned to 1 they are a small
+nonlinear least-squares problem (:func:`pair_lighting`). Pairs that straddle
+an albedo edge, a highlight, a cast shadow or a depth step break the equation;
+they are the outliers of a reweighted fit (Tukey's biweight). Because the
+gains cancel view by view, the pairs of all photos fit ONE world lighting per
+channel (``model="shared"``) without knowing the gains; a light that moves
+between shots is fitted per view (``model="per_view"``). The gains come
+afterwards (:func:`view_gains`).
 
-``(I_j T_i - I_i T_j) . sigma = 0``
-
-is one linear equation in the lighting, whatever the albedo and whatever the
-photo's gain (exposure, white balance), which cancels from both sides. Every
-pair of neighbours gives one; pinning the constant coefficient (index 3) to 1
-makes the system a least-squares problem in the other coefficients. Pairs that
-straddle an albedo edge, a highlight, a cast shadow or a depth step break the
-equation; they are the outliers of an iteratively reweighted fit (Tukey's
-biweight on the residual in units of the pair's brightness and shading, which
-is the difference of log brightness minus that of log shading). Nothing here
-starts from ``rho = I``: the fit sees only ratios of the photos.
-
-Because the gains cancel view by view, the pairs of all photos fit ONE world
-lighting per channel (``model="shared"``) without knowing the gains; a light
-that moves between shots is fitted per view (``model="per_view"``). The gains
-come afterwards (:func:`view_gains`): each photo's brightness against the
-albedo that all photos agree on under the fitted shading.
+**The lighting stage with its albedo edges freed** (:func:`reweighted_lighting`).
+The MM of the lighting stage minimises data + TV; TV charges an albedo edge by
+its height, so the lighting it settles on lowers the edges between flat
+regions. Run again with each TV row weighted down where the first run found an
+edge (:func:`edge_weights`), the lighting is left to explain the variation
+inside the regions.
 """
 
 from __future__ import annotations
@@ -29,7 +30,14 @@ import numpy as np
 
 from .sh import sh_basis
 
-__all__ = ["neighbour_pairs", "pair_lighting", "view_gains", "estimate_lighting", "edge_weights", "reweighted_lighting"]
+__all__ = [
+    "neighbour_pairs",
+    "pair_lighting",
+    "view_gains",
+    "estimate_lighting",
+    "edge_weights",
+    "reweighted_lighting",
+]
 
 # Tukey's biweight cut-off, in robust standard deviations of the normalised residual.
 _TUKEY = 4.685
@@ -45,7 +53,7 @@ def _pixel_transfer(problem):
     return out
 
 
-def neighbour_pairs(mask: np.ndarray, uv=None, steps=(1, 2), max_uv_ratio: float = 4.0, erode: int = 0):
+def neighbour_pairs(mask: np.ndarray, uv=None, steps=(1, 2), max_uv_ratio: float = 4.0):
     """Pairs of masked pixels of one photo, ``steps`` apart along rows and columns: ``(a, b)`` indices.
 
     Indices count the masked pixels in row-major order (as
@@ -57,15 +65,10 @@ def neighbour_pairs(mask: np.ndarray, uv=None, steps=(1, 2), max_uv_ratio: float
     h, w = mask.shape
     rank = np.full(mask.shape, -1, np.intp)
     rank[mask] = np.arange(int(mask.sum()))
-    core = mask
-    if erode > 0:
-        from scipy.ndimage import binary_erosion
-
-        core = binary_erosion(mask, iterations=erode)
     out_a, out_b = [], []
     for k in steps:
         for dy, dx in ((0, k), (k, 0)):
-            m = core[: h - dy, : w - dx] & core[dy:, dx:]
+            m = mask[: h - dy, : w - dx] & mask[dy:, dx:]
             a = rank[: h - dy, : w - dx][m]
             b = rank[dy:, dx:][m]
             if uv is not None and a.size:
@@ -93,9 +96,7 @@ def _usable(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def pair_lighting(
-    rows_i, rows_j, Ii, Ij, weight, starts, iterations: int = 20, ridge: float = 1e-4, colour_prior: float = 0.0
-):
+def pair_lighting(rows_i, rows_j, Ii, Ij, weight, starts, iterations: int = 20, ridge: float = 1e-4):
     """The robust fit of ``log(I_j / I_i) = log(s_j / s_i)``, ``s = sigma . T``, ``sigma_3 = 1``, per group of pairs.
 
     Gauss-Newton on the log-ratio residual of every channel, reweighted at
@@ -141,37 +142,16 @@ def pair_lighting(
         lo, hi = starts[g], starts[g + 1]
         if hi - lo < K:
             continue
-        target = None
-        if colour_prior > 0 and C > 1:
-            # The channels' mean log ratio where all are valid: one lighting shape for all channels.
-            allv = valid[lo:hi].all(axis=1, keepdims=True)
-            lum = _fit_group(
-                rows_i[lo:hi],
-                rows_j[lo:hi],
-                y[lo:hi].mean(axis=1, keepdims=True),
-                allv,
-                weight[lo:hi],
-                iterations,
-                ridge,
-            )[0]
-            target, ridge_g = lum, colour_prior
-        else:
-            ridge_g = ridge
-        sigma[g] = _fit_group(
-            rows_i[lo:hi], rows_j[lo:hi], y[lo:hi], valid[lo:hi], weight[lo:hi], iterations, ridge_g, target
-        )
+        sigma[g] = _fit_group(rows_i[lo:hi], rows_j[lo:hi], y[lo:hi], valid[lo:hi], weight[lo:hi], iterations, ridge)
     return sigma
 
 
-def _fit_group(Ti, Tj, y, valid, w0, iterations, ridge, target=None):
-    """One group's fit, all channels (see :func:`pair_lighting`): ``(C, K)``; the ridge pulls towards ``target``."""
+def _fit_group(Ti, Tj, y, valid, w0, iterations, ridge):
+    """One group's fit, all channels (see :func:`pair_lighting`): ``(C, K)``."""
     K, C = Ti.shape[1], y.shape[1]
     free = np.delete(np.arange(K), 3)
     sigma = np.zeros((C, K))
     sigma[:, 3] = 1.0
-    if target is None:
-        target = sigma[0]
-    sigma[:] = target
 
     def residual(sig, c):
         si, sj = Ti @ sig, Tj @ sig
@@ -180,8 +160,7 @@ def _fit_group(Ti, Tj, y, valid, w0, iterations, ridge, target=None):
         return e, si, sj, ok
 
     def cost(e, ok, sig, w, r):
-        dev = sig[free] - target[free]
-        return float(np.sum(w * np.where(ok, e * e, 1e30))) + r * float(dev @ dev)
+        return float(np.sum(w * np.where(ok, e * e, 1e30))) + r * float(sig[free] @ sig[free])
 
     state = [residual(sigma[c], c) for c in range(C)]
     for _ in range(iterations):
@@ -205,8 +184,8 @@ def _fit_group(Ti, Tj, y, valid, w0, iterations, ridge, target=None):
             J = (Ti / np.where(ok, si, 1.0)[:, None] - Tj / np.where(ok, sj, 1.0)[:, None])[:, free]
             M = (J * w[:, None]).T @ J
             r = ridge * max(float(np.trace(M)) / free.size, 1e-30)
-            # Minimise |e + J d|_w^2 + r |sigma_free + d - target|^2.
-            step = np.linalg.solve(M + r * np.eye(free.size), -(J.T @ (w * e)) - r * (sigma[c, free] - target[free]))
+            # Minimise |e + J d|_w^2 + r |sigma_free + d|^2: the ridge pulls towards the ambient lighting.
+            step = np.linalg.solve(M + r * np.eye(free.size), -(J.T @ (w * e)) - r * sigma[c, free])
             before = cost(e, ok, sigma[c], w, r)
             t = 1.0
             while t > 1e-3:
@@ -289,11 +268,9 @@ def _two_way(y, cell, view, w, m, rounds):
 def estimate_lighting(
     problem,
     model: str = "shared",
-    colour_prior: float = 0.0,
-    steps=(1, 2),
-    erode: int = 0,
+    steps=(2, 4, 8, 16, 32),
     iterations: int = 20,
-    max_pairs: int = 2_000_000,
+    max_pairs: int = 500_000,
     cell_size: int = 128,
     seed: int = 0,
 ):
@@ -309,9 +286,9 @@ def estimate_lighting(
     steps : tuple of int
         Pixel distances of the pairs, along rows and columns.
     iterations : int
-        Reweightings of :func:`pair_lighting`.
+        Gauss-Newton steps of :func:`pair_lighting`.
     max_pairs : int
-        Pairs kept at most (a fixed random subset beyond), per channel.
+        Pairs kept at most (a fixed random subset beyond).
     cell_size : int
         UV cells of the gains' albedo (:func:`view_gains`).
     seed : int
@@ -333,10 +310,9 @@ def estimate_lighting(
     usable = [_usable(x) for x in values]
     pa, pb, pv, pw = [], [], [], []
     offset = 0
-    offsets = [0]
     for v in range(m):
         uv = problem.uv[v] if problem.uv is not None else None
-        a, b = neighbour_pairs(problem.masks[v], uv, steps, erode=erode)
+        a, b = neighbour_pairs(problem.masks[v], uv, steps)
         w = np.ones(a.size)
         if problem.view_weight is not None:
             vw = problem.view_weight[v][problem.masks[v]].astype(np.float64)
@@ -346,7 +322,6 @@ def estimate_lighting(
         pv.append(np.full(a.size, v))
         pw.append(w)
         offset += values[v].shape[0]
-        offsets.append(offset)
     pa, pb, pv, pw = (np.concatenate(x) for x in (pa, pb, pv, pw))
     T = np.concatenate(transfer)
     X = np.concatenate(values)
@@ -359,16 +334,7 @@ def estimate_lighting(
     use = U[a] & U[b]
     # Pairs are in view order already: a group per view is a slice.
     starts = np.array([0, idx.size]) if model == "shared" else np.searchsorted(pv[idx], np.arange(m + 1))
-    fit = pair_lighting(
-        T[a],
-        T[b],
-        np.where(use, X[a], 0.0),
-        np.where(use, X[b], 0.0),
-        pw[idx],
-        starts,
-        iterations,
-        colour_prior=colour_prior,
-    )
+    fit = pair_lighting(T[a], T[b], np.where(use, X[a], 0.0), np.where(use, X[b], 0.0), pw[idx], starts, iterations)
     sigma = np.broadcast_to(fit, (m, C, K)).copy() if model == "shared" else fit
     cells = []
     for v in range(m):
