@@ -95,9 +95,10 @@ def default_out_dir(blend_path: str, object_name: str) -> str:
     return os.path.join(_blend_folder(blend_path), "delight_" + safe_name(object_name))
 
 
-def _output_names(object_name, camera_names) -> list:
-    """The files of a run besides report.json, relative to the output folder."""
-    return [safe_name(object_name) + "_albedo.exr", *_outputs.view_files(camera_names), _outputs.LIGHTING]
+def _output_names(object_name, camera_names, method) -> list:
+    """The files of a run besides report.json, relative to the output folder: albedo, views, lighting."""
+    lighting = _outputs.lighting_files(estimated=method != "project")
+    return [safe_name(object_name) + "_albedo.exr", *_outputs.view_files(camera_names), *lighting]
 
 
 def _input_files(inputs) -> list:
@@ -157,7 +158,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     need = 16 * (int(options.texture_size) ** 2 + sum(v.photo.shape[0] * v.photo.shape[1] for v in inputs.views))
     _outputs.prepare_outputs(
         out_dir,
-        _output_names(inputs.object_name, [v.name for v in inputs.views]),
+        _output_names(inputs.object_name, [v.name for v in inputs.views], options.method),
         options.overwrite,
         _input_files(inputs),
         need_bytes=need,
@@ -192,9 +193,9 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     return _compute(prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel)
 
 
-def _lighting_json(prepared, computed, files):
+def _lighting_outputs(prepared, computed, files):
     names = [v.name for v in prepared.inputs.views]
-    return _outputs.lighting_json(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
+    return _outputs.lighting_outputs(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
 
 
 def _report_json(prepared, computed, files, times):
@@ -274,12 +275,12 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
         raise DelightError(f"the object {inputs.object_name!r} is gone from the scene")
     _material.check_editable(obj)  # before any file is written
     names = [v.name for v in inputs.views]
-    albedo_file, *view_files, lighting_file = _output_names(inputs.object_name, names)
+    albedo_file, *view_files = _output_names(inputs.object_name, names, opt.method)[: 1 + len(names)]
     stage(0.0, f"files in {prepared.out_dir}")
     contents = {albedo_file: _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)}
     for b, f, values in zip(prepared.bakes, view_files, computed.views):
         contents[f] = _outputs.rgba(values, b.mask)
-    contents[lighting_file] = _lighting_json(prepared, computed, view_files)
+    contents.update(_lighting_outputs(prepared, computed, view_files))
 
     def report():
         # report.json holds the time spent writing the other files.
