@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
 from .discretization import Discretization, image_domain, texture_domain
@@ -101,9 +102,12 @@ class SolverParams:
         :func:`core.solve.pyramid.coarsen`), ``coarse_iter`` iterations at most on
         each, and start each level from the one below (rho sampled
         bilinearly from it, sigma as it is).
-    threads : int
-        Channels solved at once, in threads (the sparse products release the
-        GIL); one thread per channel keeps every core busy.
+    threads : int or None
+        Threads the solve uses (the sparse products and NumPy's large array
+        operations release the GIL); None: every core the process may use
+        (:func:`core.parallel.available_cores`). The colour channels are
+        solved at once, each in its own thread; the result does not depend
+        on the number.
     extrapolate : float
         After each iteration, try ``rho + extrapolate * (rho - rho_before)``
         and keep it if it lowers the energy (0 never tries): MM creeps along
@@ -131,6 +135,11 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
+    light_pixels : float
+        Two stages: the lighting stage keeps every other pixel (in rows and
+        columns), repeatedly, while it has more than this many pixels per
+        seen texel of its texture (:func:`core.solve.pyramid.thin_pixels`;
+        0: all pixels).
     """
 
     domain: str = "texture"
@@ -142,7 +151,7 @@ class SolverParams:
     tol: float = 1e-4
     cg_iter: int | None = None
     normalise_correspondences: bool = True
-    threads: int = 3
+    threads: int | None = None
     gauss_newton: bool = False
     data_model: str = "splat"
     precision: str = "float32"
@@ -155,6 +164,7 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
+    light_pixels: float = 0.0
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -195,6 +205,10 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
+        if not np.isfinite(self.light_pixels) or self.light_pixels < 0:
+            raise ValueError(f"solver: light_pixels must be finite and >= 0, got {self.light_pixels}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
 
@@ -228,6 +242,11 @@ class Result:
     texture: np.ndarray | None = None
     seen: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+
+
+def channel_threads(params: SolverParams, channels: int) -> int:
+    """Threads for the channels' pool: ``params.threads`` (None: every available core), at most one per channel."""
+    return max(1, min(resolve_threads(params.threads), channels))
 
 
 def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarray:
@@ -299,6 +318,7 @@ class _Channel:
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
         self._Bx = np.empty(d.B.shape[0], self.ft)
         self._sw = np.empty(d.B.shape[0], self.ft)
+        self._pair_values = None  # the rho-step's B^T diag(sw) B (core.solve.spmv.PairNormal), made on first use
         # Gathered once per change: the observations' values and shading.
         self.obs_values = self.values[d.obs_pixel].astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
@@ -338,11 +358,31 @@ class _Channel:
             data = lambda x: diag * x  # noqa: E731
         else:
             data = lambda x: d.scatter(waa * d.gather(x))  # noqa: E731
+        pair = d.pair_normal() if self.hierarchy is None else None
         if d.B.shape[0]:
             # sw = s * mm_weight(B rho), in the kept buffers.
             Bx = matvec_into(d.B, self.rho, self._Bx)
             sw = np.multiply(self.s_ft, mm_weight(Bx, self.delta, out=Bx), out=self._sw)
             B, BT = d.B, d.BT
+        if pair is not None:
+            # B^T diag(sw) B as one matrix: its off-diagonal part, and the diagonal with the data term's.
+            if self._pair_values is None:
+                self._pair_values = np.empty(pair.edge.size, self.ft)
+                self._Lx, self._Dx = np.empty(d.n_unknowns, self.ft), np.empty(d.n_unknowns, self.ft)
+            values = pair.values(sw, self._pair_values)
+            tv_diag = (d.B2T @ sw).astype(self.ft, copy=False)
+            diag = tv_diag + jacobi if d.diagonal_data else tv_diag
+            Lx, Dx = self._Lx, self._Dx
+
+            def matvec(x):
+                out = pair.matvec_into(values, x, Lx)
+                out += np.multiply(diag, x, out=Dx)
+                if not d.diagonal_data:
+                    out += data(x)
+                return out
+
+            jacobi = jacobi + tv_diag
+        elif d.B.shape[0]:
 
             def matvec(x):
                 y = matvec_into(B, x, Bx)
@@ -355,7 +395,7 @@ class _Channel:
         if self.hierarchy is not None:  # only built for a diagonal data term with rows in B
             precondition = self.hierarchy.preconditioner(matvec, jacobi, sw, self.ft)
         else:
-            if d.B.shape[0]:
+            if d.B.shape[0] and pair is None:
                 jacobi = jacobi + d.B2T @ sw
             precondition = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
         rho = pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
@@ -368,9 +408,10 @@ class _Channel:
         d = self.d
         rho_o = d.gather(self.rho)
         w = self.data_weights(rho_o)
-        npix = d.nu.shape[0]
-        g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
-        h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
+        wr = w * rho_o
+        h = d.pixel_sum(wr) * self.values
+        wr *= rho_o
+        g = d.pixel_sum(wr)
         k = d.nu.shape[1]
         Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
         for v in range(d.n_views):
@@ -616,7 +657,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
     stopping test on the relative energy change is skipped before
     ``min_iter``, so that a warm start cannot stop the loop at once.
     """
-    pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
+    pool = ThreadPoolExecutor(max_workers=channel_threads(params, len(channels)))
     history, elapsed = [sum(ch.e for ch in channels)], [time.perf_counter() - t0]
     try:
         for it in range(1, params.max_iter + 1):
