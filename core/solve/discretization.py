@@ -75,13 +75,18 @@ class Discretization:
     n_tv: int  # rows [0, n_tv) are TV, the rest correspondences
     base: np.ndarray  # (E,) float32 base row weights
     rho0: np.ndarray  # (n, C) float32 starting reflectance
-    obs_view: np.ndarray | None = None  # (O,) intp view of each observation
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
 
     @property
     def n_views(self) -> int:
         return len(self.pixel_offsets) - 1
+
+    @property
+    def obs_view(self) -> np.ndarray:
+        """(O,) intp: the view of each observation (made on each use; only the Gauss-Newton step needs it)."""
+        view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
+        return view_of_pixel[self.obs_pixel]
 
     @property
     def nu_products(self) -> np.ndarray:
@@ -100,9 +105,6 @@ class Discretization:
         self._pair = None
         self._products = None
         self._lock = threading.Lock()  # the channels' threads ask for the products at once
-        if self.obs_view is None:
-            view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
-            self.obs_view = view_of_pixel[self.obs_pixel]
 
     @property
     def diagonal_data(self) -> bool:
@@ -136,7 +138,8 @@ class Discretization:
         """The 0/1 float32 CSR matrix that sums the observations onto the unknowns or the pixels (kept)."""
         if onto not in self._sums:
             o = self.obs_pixel.size
-            ones = np.ones(o, np.float32)
+            other = next(iter(self._sums.values()), None)
+            ones = np.ones(o, np.float32) if other is None else other.data  # shared by both
             if onto == "pixel":  # obs_pixel is sorted: each pixel's observations are a run
                 indptr = np.searchsorted(self.obs_pixel, np.arange(self.nu.shape[0] + 1))
                 idx = np.int32 if o < 2**31 else np.int64
@@ -145,6 +148,7 @@ class Discretization:
                 )
             else:
                 m = sp.csr_matrix((ones, (self.obs_unknown, np.arange(o))), shape=(self.n_unknowns, o))
+                m.data = ones
             self._sums[onto] = m
         return self._sums[onto]
 
@@ -211,7 +215,8 @@ def _assemble(groups, n_unknowns):
     B.sum_duplicates()
     B.eliminate_zeros()
     BT = B.T.tocsr()
-    B2T = BT.multiply(BT).tocsr()
+    # Same pattern as BT: share its index arrays.
+    B2T = sp.csr_matrix((BT.data * BT.data, BT.indices, BT.indptr), shape=BT.shape, copy=False)
     return B, BT, B2T
 
 

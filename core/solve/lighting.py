@@ -350,6 +350,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
     ):
         light_problem = thin_pixels(with_texture_size(problem, params.light_size), params.light_pixels)
     first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
+    first.views = None  # not needed: free them before the larger stage
     t1 = time.perf_counter()
     second = solve_albedo(
         problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel

@@ -275,7 +275,9 @@ def _weighted_huber(x, w, delta):
 
 def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None):
     """One channel's energy; ``rows``, if given, is a buffer for ``B @ rho`` in rho's dtype."""
-    r = d.gather(rho) * obs_shade - obs_values
+    r = d.gather(rho)  # a new array: the residual is made in it
+    r *= obs_shade
+    r -= obs_values
     data = _weighted_huber(r, d.obs_weight, delta)
     if not d.B.shape[0]:
         return data
@@ -342,17 +344,23 @@ class _Channel:
         return e
 
     def data_weights(self, rho_o):
-        """beta * the majorant's curvature at the current residuals."""
-        r = rho_o * self.obs_shade - self.obs_values
-        return self.d.obs_weight * mm_weight(r, self.delta).astype(self.ft)
+        """beta * the majorant's curvature at the current residuals (one new array)."""
+        w = np.multiply(rho_o, self.obs_shade)
+        w -= self.obs_values
+        mm_weight(w, self.delta, out=w)
+        w *= self.d.obs_weight
+        return w
 
     def rho_step(self):
         d = self.d
         a = self.obs_shade
-        wa = self.data_weights(d.gather(self.rho)) * a
-        waa = wa * a
-        rhs = d.scatter(wa * self.obs_values).astype(self.ft)
-        jacobi = d.scatter(waa, squared=True).astype(self.ft)
+        rho_o = d.gather(self.rho)
+        waa = self.data_weights(rho_o)
+        waa *= a  # w a
+        rhs = d.scatter(np.multiply(waa, self.obs_values, out=rho_o)).astype(self.ft, copy=False)
+        waa *= a  # w a^2
+        del rho_o
+        jacobi = d.scatter(waa, squared=True).astype(self.ft, copy=False)
         if d.diagonal_data:
             diag = jacobi
             data = lambda x: diag * x  # noqa: E731
