@@ -135,19 +135,3 @@ def test_upsample_bilinear_is_exact_for_a_linear_albedo():
     inner[:, :10] = inner[:, -1:] = inner[:1] = inner[-1:] = False
     np.testing.assert_allclose(fine[inner, 0], linear(64)[inner, 0], atol=1e-5)
     assert np.all(np.isnan(fine[~fine_seen]))
-
-
-def test_thin_pixels_keeps_every_other_pixel_until_few_per_texel(monkeypatch):
-    monkeypatch.setattr(pyramid, "MIN_PIXELS", 100)
-    sc = sphere_scene(n_views=4, height=120, width=160, texture_size=16, seed=2)
-    p = sc.problem
-    seen = texture_domain(p).n_unknowns
-    pixels = sum(int(m.sum()) for m in p.masks)
-    assert pyramid.thin_pixels(p, 0) is p and pyramid.thin_pixels(p, pixels / seen + 1) is p
-    thin = pyramid.thin_pixels(p, pixels / seen / 10)
-    count = sum(int(m.sum()) for m in thin.masks)
-    assert count <= pixels / 10 and thin.texture is p.texture
-    step = p.masks[0].shape[0] // thin.masks[0].shape[0]
-    assert step in (4, 8) and thin.masks[0].shape[1] == p.masks[0].shape[1] // step
-    for fine, coarse in ((p.masks, thin.masks), (p.images, thin.images), (p.uv, thin.uv), (p.normals, thin.normals)):
-        assert np.array_equal(coarse[1], fine[1][::step, ::step])

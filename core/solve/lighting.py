@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import Cancelled
 from .discretization import image_domain, texture_domain
-from .pyramid import supported_size, thin_pixels, upsample_bilinear, with_texture_size
+from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
 #: TV weight of the albedo stage, chosen by leave-one-scene-out over the fixtures (docs/measurements.md).
@@ -348,7 +348,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         and problem.texture is not None
         and problem.texture.size > params.light_size
     ):
-        light_problem = thin_pixels(with_texture_size(problem, params.light_size), params.light_pixels)
+        light_problem = with_texture_size(problem, params.light_size)
     first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
     first.views = None  # not needed: free them before the larger stage
     t1 = time.perf_counter()

@@ -11,7 +11,6 @@ correspondences whose source pixel survives are kept, in coarse coordinates.
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 
 import numpy as np
 
@@ -19,7 +18,7 @@ from ..geometry.bilinear import interpolate, masked_corners
 from ..geometry.texels import bilinear_texels, uv_of_texel
 from .problem import Correspondences, Problem, TextureLayout
 
-__all__ = ["coarsen", "thin_pixels", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
+__all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
 
 # Below these a level has too little data to say anything about the finer one.
 MIN_SIZE = 32
@@ -121,33 +120,6 @@ def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _seen_texels(problem: Problem, size: int) -> int:
-    """Texels of a ``size`` texture that some pixel's bilinear footprint reaches (as the solver sees them)."""
-    inside = problem.texture.inside if size == problem.texture.size else np.ones((size, size), bool)
-    hit = np.zeros(size * size, dtype=bool)
-    for uv, m in zip(problem.uv, problem.masks):
-        idx, w = bilinear_texels(uv[m], inside)
-        hit[idx[w > 0]] = True
-    return int(np.count_nonzero(hit))
-
-
-def thin_pixels(problem: Problem, pixels_per_texel: float) -> Problem:
-    """The problem at every other pixel, repeatedly, while it has more than ``pixels_per_texel`` per seen texel.
-
-    The texture layout stays. For a stage that estimates a few lighting coefficients on a small texture, pixels
-    far beyond the texels add cost and little else. 0 never thins; it stops where :func:`coarsen` would.
-    """
-    if not pixels_per_texel or problem.texture is None:
-        return problem
-    seen = _seen_texels(problem, problem.texture.size)
-    while sum(int(m.sum()) for m in problem.masks) > pixels_per_texel * seen:
-        thinner = coarsen(problem, texture=False)
-        if thinner is None:
-            break
-        problem = replace(thinner, texture=problem.texture)
-    return problem
-
-
 def supported_size(problem: Problem, texels_per_pixel: float) -> int:
     """The largest size, halving from the problem's texture, with at most ``texels_per_pixel`` seen texels per pixel.
 
@@ -158,7 +130,13 @@ def supported_size(problem: Problem, texels_per_pixel: float) -> int:
     size = problem.texture.size
     pixels = sum(int(m.sum()) for m in problem.masks)
     while size // 2 >= MIN_SIZE:
-        if _seen_texels(problem, size) <= texels_per_pixel * pixels:
+        # Seen as the solver sees them: every texel a pixel's bilinear footprint reaches.
+        inside = problem.texture.inside if size == problem.texture.size else np.ones((size, size), bool)
+        hit = np.zeros(size * size, dtype=bool)
+        for uv, m in zip(problem.uv, problem.masks):
+            idx, w = bilinear_texels(uv[m], inside)
+            hit[idx[w > 0]] = True
+        if np.count_nonzero(hit) <= texels_per_pixel * pixels:
             break
         size //= 2
     return size

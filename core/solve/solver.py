@@ -135,11 +135,6 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
-    light_pixels : float
-        Two stages: the lighting stage keeps every other pixel (in rows and
-        columns), repeatedly, while it has more than this many pixels per
-        seen texel of its texture (:func:`core.solve.pyramid.thin_pixels`;
-        0: all pixels).
     """
 
     domain: str = "texture"
@@ -164,7 +159,6 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
-    light_pixels: float = 0.0
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -207,8 +201,6 @@ class SolverParams:
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
-        if not np.isfinite(self.light_pixels) or self.light_pixels < 0:
-            raise ValueError(f"solver: light_pixels must be finite and >= 0, got {self.light_pixels}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
 
