@@ -104,7 +104,7 @@ class Discretization:
         self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
         self._pair = None
         self._products = None
-        self._lock = threading.Lock()  # the channels' threads ask for the products at once
+        self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 
     @property
     def diagonal_data(self) -> bool:
@@ -136,6 +136,10 @@ class Discretization:
 
     def _sum_matrix(self, onto: str):
         """The 0/1 float32 CSR matrix that sums the observations onto the unknowns or the pixels (kept)."""
+        with self._lock:
+            return self._sum_matrix_locked(onto)
+
+    def _sum_matrix_locked(self, onto: str):
         if onto not in self._sums:
             o = self.obs_pixel.size
             other = next(iter(self._sums.values()), None)
@@ -154,8 +158,9 @@ class Discretization:
 
     def pair_normal(self):
         """:class:`core.solve.spmv.PairNormal` of B (kept), or None when B's rows are not all pairs."""
-        if self._pair is None:
-            self._pair = PairNormal.of(self.B, self.BT) or False
+        with self._lock:
+            if self._pair is None:
+                self._pair = PairNormal.of(self.B, self.BT) or False
         return self._pair or None
 
     def observation_matrices(self):

@@ -104,10 +104,9 @@ class SolverParams:
         bilinearly from it, sigma as it is).
     threads : int or None
         Threads the solve uses (the sparse products and NumPy's large array
-        operations release the GIL); None: every core the process may use
-        (:func:`core.parallel.available_cores`). The colour channels are
-        solved at once, each in its own thread; the result does not depend
-        on the number.
+        operations release the GIL): the colour channels are solved at once,
+        up to this many in threads. None: every core, one thread per channel.
+        The result does not depend on the number.
     extrapolate : float
         After each iteration, try ``rho + extrapolate * (rho - rho_before)``
         and keep it if it lowers the energy (0 never tries): MM creeps along
@@ -237,7 +236,13 @@ class Result:
 
 
 def channel_threads(params: SolverParams, channels: int) -> int:
-    """Threads for the channels' pool: ``params.threads`` (None: every available core), at most one per channel."""
+    """Threads for the channels' pool: one per channel, or ``params.threads`` if that is fewer.
+
+    With None (every core) each channel gets its own thread even on fewer cores: the system shares them out,
+    where a pool of two threads for three channels would leave one core idle while the last channel runs.
+    """
+    if params.threads is None:
+        return max(1, channels)
     return max(1, min(resolve_threads(params.threads), channels))
 
 

@@ -53,14 +53,15 @@ class PairNormal:
     """
 
     def __init__(self, B, BT):
-        E = B.shape[0]
-        ends = B.indices.reshape(E, 2).astype(np.int64)
         self.n = BT.shape[0]
         self.indptr = BT.indptr
         self.edge = BT.indices  # the row of B behind each entry
         self.coef = B.data[0::2] * B.data[1::2]
-        row = np.repeat(np.arange(self.n, dtype=np.int64), np.diff(BT.indptr))
-        self.indices = (ends[self.edge].sum(axis=1) - row).astype(BT.indices.dtype)
+        # The other unknown of each entry's row: the sum of the row's two columns minus this one.
+        ends = B.indices[0::2].astype(np.int64) + B.indices[1::2]
+        other = np.take(ends, self.edge)
+        other -= np.repeat(np.arange(self.n, dtype=np.int64), np.diff(BT.indptr))
+        self.indices = other.astype(BT.indices.dtype)
 
     @classmethod
     def of(cls, B, BT):
