@@ -29,7 +29,7 @@ from .core.checks import check_photos, check_uv_layout
 from .core.errors import Cancelled, DelightError
 from .core.io import outputs as _outputs
 from .core.io.names import safe_name
-from .core.pipeline import Computed, Options, check_cancel, stage_progress
+from .core.pipeline import Computed, Options, check_cancel, peak_mb, stage_progress
 from .core.pipeline import compute as _compute
 
 
@@ -43,6 +43,7 @@ class Prepared:
     out_dir: str
     times: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    peaks: dict = field(default_factory=dict)  # peak memory (MB) at the end of each stage
 
 
 @dataclass
@@ -133,7 +134,7 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     from .core.geometry import bake as _bake
 
     options.validate()
-    times = {}
+    times, peaks = {}, {}
     if not options.out_dir:
         _blend_folder(bpy.data.filepath)  # no default folder: say so before reading the scene
     if options.save_blend and not bpy.data.filepath:
@@ -163,12 +164,14 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         _input_files(inputs),
         need_bytes=need,
     )
-    times["gather"] = time.perf_counter() - t
+    times["gather"], peaks["gather"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     t = time.perf_counter()
-    bakes = _bake.bake_views(scene, inputs, progress=stage_progress(progress, "bake"), cancel=cancel)
-    times["bake"] = time.perf_counter() - t
+    bakes = _bake.bake_views(
+        scene, inputs, progress=stage_progress(progress, "bake"), cancel=cancel, threads=options.threads
+    )
+    times["bake"], peaks["bake"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     # A camera that does not see the mesh adds nothing: drop it, but not all.
@@ -185,12 +188,16 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         bakes = [bakes[i] for i in keep]
     warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
     warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views], [b.mask for b in bakes])
-    return Prepared(options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times, warnings=warnings)
+    return Prepared(
+        options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times, warnings=warnings, peaks=peaks
+    )
 
 
 def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     """Build the problem, solve and fuse (:func:`core.pipeline.compute`; safe in a worker thread)."""
-    return _compute(prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel)
+    return _compute(
+        prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel, peaks=prepared.peaks
+    )
 
 
 def _lighting_outputs(prepared, computed, files):
@@ -231,6 +238,7 @@ def _report_json(prepared, computed, files, times):
             for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)
         ],
         "times_s": times,
+        "peak_mb": prepared.peaks,
         "iterations": computed.iterations,
         "energy": computed.energy,
         "solver_info": computed.info,
@@ -284,7 +292,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     def report():
         # report.json holds the time spent writing the other files.
-        times["write"] = time.perf_counter() - t
+        times["write"], prepared.peaks["write"] = time.perf_counter() - t, peak_mb()
         return _report_json(prepared, computed, view_files, times)
 
     files = _outputs.write_outputs(

@@ -186,6 +186,7 @@ def _solve(args) -> int:
         max_iter=args.max_iter,
         data_model=args.data_model,
         gauss_newton=args.gauss_newton,
+        threads=args.threads,
     )
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()

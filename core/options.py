@@ -306,6 +306,20 @@ SPEC = (
         noun="texture size",
     ),
     Option(
+        "threads",
+        "int",
+        None,
+        "Threads",
+        "CPU threads the run uses for the bake, the occlusion and the solve",
+        min=1,
+        max=4096,
+        soft_min=1,
+        soft_max=64,
+        flag="--threads",
+        metavar="N|auto",
+        auto="every core this process may use",
+    ),
+    Option(
         "out_dir",
         "dir",
         None,
@@ -392,13 +406,14 @@ RUN_FIELDS = (
     "working_res_mp",
     "texture_size",
     "method",
+    "threads",
     "out_dir",
     "save_blend",
     "overwrite",
 )
 
 #: The solver's settings that ``python -m core solve`` takes.
-SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton")
+SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton", "threads")
 
 
 def _number(x) -> str:

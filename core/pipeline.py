@@ -6,6 +6,7 @@ The Blender layer reads the scene and bakes it (:mod:`core.scene`, :mod:`core.ge
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -21,7 +22,7 @@ from .texture import fill_unseen, fuse_views, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
-__all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "stage_progress", "check_cancel"]
+__all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "peak_mb", "stage_progress", "check_cancel"]
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
@@ -54,12 +55,29 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
+def peak_mb() -> float | None:
+    """The process's peak resident memory so far, in MB (None where the system does not say)."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KiB elsewhere
+
+
 def compute(
-    options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None, cancel=None
+    options: Options,
+    inputs: SceneInputs,
+    bakes: list,
+    times: dict | None = None,
+    progress=None,
+    cancel=None,
+    peaks: dict | None = None,
 ) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
-    ``times`` (if given) receives the seconds spent in "solve" and "fuse".
+    ``times`` (if given) receives the seconds spent in "solve" and "fuse"; ``peaks`` the process's
+    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve).
 
     Raises
     ------
@@ -70,6 +88,8 @@ def compute(
     """
     opt = options
     times = {} if times is None else times
+    peaks = {} if peaks is None else peaks
+    occlusion_s = None
     n = int(opt.texture_size)
     photos = [v.photo for v in inputs.views]
     masks = [b.mask for b in bakes]
@@ -97,9 +117,17 @@ def compute(
         from .geometry.transfer import pixel_transfer
 
         solve_progress(0.0, "occlusion")
+        t_occ = time.perf_counter()
         transfer = pixel_transfer(
-            inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes], [b.position for b in bakes], weights
+            inputs.mesh.tri_pos,
+            uvs,
+            masks,
+            [b.normal for b in bakes],
+            [b.position for b in bakes],
+            weights,
+            threads=opt.threads,
         )
+        occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(
         images=photos,
@@ -135,10 +163,11 @@ def compute(
                 max_iter=int(opt.max_iter),
                 albedo_lam=opt.albedo_lam,
                 lighting=lighting,
+                threads=opt.threads,
             )
         )
         result = solve(problem, params, progress=solve_progress, cancel=cancel)
-    times["solve"] = time.perf_counter() - t
+    times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     t = time.perf_counter()
@@ -154,7 +183,7 @@ def compute(
         fused = fuse_views(maps, problem.masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
         albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
-    times["fuse"] = time.perf_counter() - t
+    times["fuse"], peaks["fuse"] = time.perf_counter() - t, peak_mb()
     fuse_progress(1.0, "done")
     check_cancel(cancel)
     return Computed(
@@ -173,5 +202,6 @@ def compute(
             albedo_lam=opt.albedo_lam,
             lighting_mode=lighting,
             occlusion=bool(opt.occlusion),
+            occlusion_seconds=occlusion_s,
         ),
     )

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DelightError
+from ..parallel import thread_map
 from ..progress import check_cancel
 from .raycast import raycast
 
@@ -83,7 +84,7 @@ def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
     return ViewBake(mask=mask, normal=normal, uv=uv, position=position, view_weight=weight)
 
 
-def bake_views(scene, inputs, progress=None, cancel=None) -> list:
+def bake_views(scene, inputs, progress=None, cancel=None, threads=None) -> list:
     """Bake each view of :class:`scene.SceneInputs`; one :class:`ViewBake` per view, in order.
 
     Parameters
@@ -96,6 +97,9 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     cancel : callable() -> bool, optional
         Checked between views; when it returns True, :class:`core.errors.Cancelled`
         is raised.
+    threads : int or None
+        Views baked at once (None: every available core). ``progress`` and
+        ``cancel`` are called from the calling thread only.
 
     Raises
     ------
@@ -107,13 +111,17 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     mesh = inputs.mesh
     corner = _corner_normals(mesh)
     face = _face_normals(mesh, corner)
-    out = []
     m = len(inputs.views)
-    for i, view in enumerate(inputs.views):
-        check_cancel(cancel)
+    check_cancel(cancel)
+    if progress is not None:
+        progress(0.0, f"baking {m} views")
+
+    def done(i):
         if progress is not None:
-            progress(i / max(m, 1), f"baking {view.name} ({i + 1}/{m})")
-        out.append(bake_view(view.camera, mesh, corner, face))
+            progress((i + 1) / max(m, 1), f"baked {inputs.views[i].name} ({i + 1}/{m})")
+        check_cancel(cancel)
+
+    out = thread_map(lambda view: bake_view(view.camera, mesh, corner, face), inputs.views, threads, done)
     if progress is not None:
         progress(1.0, "baked")
     if not any(b.mask.any() for b in out):

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..parallel import thread_map
 from ..solve.sh import sh_basis, sh_degree
 from .camera import Camera
 from .raycast import raycast
@@ -78,7 +79,9 @@ def _shadow_camera(direction, centre, radius, resolution):
     return Camera(K=K, R=R, t=-R @ C, width=resolution, height=resolution), 2.04 * radius / resolution
 
 
-def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5):
+def visibility(
+    points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, threads=None
+):
     """Whether each point sees out of the mesh in each direction, ``(P, K)`` bool.
 
     Parameters
@@ -95,6 +98,8 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
         In map pixels: how far each point is moved along its normal before
         the test, and the depth tolerance, so that a point never shadows
         itself. Occluders nearer than about ``lift`` are missed.
+    threads : int or None
+        Directions cast at once (None: every available core).
 
     Returns
     -------
@@ -110,8 +115,8 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     centre = 0.5 * (lo + hi)
     radius = float(np.linalg.norm(corners - centre, axis=1).max()) or 1.0
-    out = np.ones((pts.shape[0], len(directions)), dtype=bool)
-    for k, w in enumerate(np.asarray(directions, np.float64)):
+
+    def open_towards(w):
         cam, pix = _shadow_camera(w, centre, radius, resolution)
         depth = raycast(cam, tri_pos).depth.ravel()
         # Lifted off the surface along its normal by `lift` map pixels, a point is in front of its own
@@ -120,12 +125,23 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
         xy, z = cam.project(pts + (lift * pix) * nrm)
         col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, resolution - 1)
         row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, resolution - 1)
-        out[:, k] = depth[row * resolution + col] >= z - bias * pix
+        return depth[row * resolution + col] >= z - bias * pix
+
+    out = np.ones((pts.shape[0], len(directions)), dtype=bool)
+    for k, col in enumerate(thread_map(open_towards, np.asarray(directions, np.float64), threads)):
+        out[:, k] = col
     return out
 
 
 def occlusion_transfer(
-    points, normals, tri_pos, n_directions: int = 64, resolution: int = 256, bounce: float = 0.0, order: int = 2
+    points,
+    normals,
+    tri_pos,
+    n_directions: int = 64,
+    resolution: int = 256,
+    bounce: float = 0.0,
+    order: int = 2,
+    threads=None,
 ):
     """``T(x) - nu(n)`` at each point: the blocked directions' share of the transfer, ``(P, 9)`` float32.
 
@@ -136,11 +152,11 @@ def occlusion_transfer(
     mean (an albedo times a shading of about the sky's), which gives back
     that fraction of the blocked constant term. ``order`` 3 or 4 gives
     ``(order + 1)^2`` coefficients (:func:`core.solve.sh.sh_basis`); bands
-    above 2 are scaled as band 2 is.
+    above 2 are scaled as band 2 is. ``threads``: as :func:`visibility`.
     """
     dirs = sphere_directions(n_directions)
     nrm = np.asarray(normals, np.float64)
-    vis = visibility(points, nrm, tri_pos, dirs, resolution)
+    vis = visibility(points, nrm, tri_pos, dirs, resolution, threads=threads)
     cos = np.maximum(nrm @ dirs.T, 0.0)  # (P, K)
     blocked = cos * (~vis)
     basis = sh_basis(dirs, np.float64, order)  # (K, (order + 1)^2)
@@ -161,6 +177,7 @@ def pixel_transfer(
     resolution: int = 256,
     bounce: float = 0.0,
     order: int = 2,
+    threads=None,
 ):
     """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
 
@@ -177,7 +194,7 @@ def pixel_transfer(
         Weights of the pixels in the cell means (the bake's view weight).
     grid, n_directions, resolution : int
         UV grid size, directions, depth map side.
-    bounce, order : float, int
+    bounce, order, threads : float, int, int or None
         See :func:`occlusion_transfer`.
 
     Returns
@@ -202,7 +219,7 @@ def pixel_transfer(
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     k = (order + 1) ** 2
     occ = np.zeros((n_cells, k), np.float32)
-    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order)
+    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order, threads)
     valid = used.reshape(grid, grid)
     scale = open_factor(k).astype(np.float32)
     out = []

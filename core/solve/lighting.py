@@ -252,7 +252,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     core.solve.solver.Result
         With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
     """
-    from .solver import Result, _Channel, _outputs
+    from .solver import Result, _Channel, _outputs, channel_threads
 
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
@@ -289,7 +289,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         channels.append(ch)
     history = [sum(ch.e for ch in channels)]
     it = 0
-    with ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels)))) as pool:
+    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
         while it < params.max_iter:
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
@@ -350,6 +350,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
     ):
         light_problem = with_texture_size(problem, params.light_size)
     first = solve(light_problem, replace(params, albedo_lam=None), part(0.0, 0.6, "lighting"), cancel)
+    first.views = None  # not needed: free them before the larger stage
+    t1 = time.perf_counter()
     second = solve_albedo(
         problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
     )
@@ -359,6 +361,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         "solved_size": first.info.get("solved_size"),
         "lam": params.lam,
         "lighting": params.lighting,
+        "pixels": sum(int(m.sum()) for m in light_problem.masks),
+        "seconds": t1 - t0,
     }
     second.info["albedo_lam"] = params.albedo_lam
     second.info["elapsed"] = [time.perf_counter() - t0]
