@@ -121,7 +121,7 @@ def print_scaling(rows):
     for row in rows:
         times = row["times_s"]
         print(
-            f"| {row['threads']} | "
+            f"| {row['threads'] or 'all'} | "
             + " | ".join(f"{times[k]:.1f} s" for k in STAGES)
             + f" | {row['process_wall_s']:.1f} s | {base['process_wall_s'] / row['process_wall_s']:.2f}x"
             + f" | {row['peak_mb']:.0f} MB | {row['load_before']:.1f} |"
@@ -135,13 +135,16 @@ def main(argv=None):
     p.add_argument("--method", default="texture", choices=["texture", "image", "project"])
     p.add_argument("--threads", type=int, help="threads of the run (default: every core)")
     p.add_argument(
-        "--scaling", action="store_true", help="run at 1, 2 and os.cpu_count() threads and print the speed-up"
+        "--scaling",
+        action="store_true",
+        help="run at 1, 2 and os.cpu_count() threads, then the default, and print the speed-up",
     )
     a = p.parse_args(argv)
     os.makedirs(a.work, exist_ok=True)
     blend = render_scene(os.path.abspath(a.work))
     started = datetime.datetime.now().isoformat(timespec="seconds")
-    counts = sorted({1, 2, os.cpu_count() or 1}) if a.scaling else [a.threads]
+    # Scaling: 1, 2 and the machine's count, then the default (every core, a thread per colour channel).
+    counts = [*sorted({1, 2, os.cpu_count() or 1}), None] if a.scaling else [a.threads]
     rows = [run_once(blend, a.work, a.method, n) for n in counts]
     row = rows[-1]
     result = {
