@@ -13,7 +13,7 @@ import numpy as np
 
 from .geometry.texels import texture_layout
 from .options import OPTIONS, Options
-from .progress import check_cancel, stage_progress
+from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem
 from .solve.solver import SolverParams, solve
@@ -21,7 +21,17 @@ from .texture import fill_unseen, fuse_views, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
-__all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "stage_progress", "check_cancel"]
+__all__ = [
+    "DEFAULTS",
+    "METHODS",
+    "Options",
+    "Computed",
+    "compute",
+    "uses_detail",
+    "schedule",
+    "stage_progress",
+    "check_cancel",
+]
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
@@ -54,12 +64,57 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
+def uses_detail(options: Options) -> bool:
+    """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
+    return bool(options.detail) and options.method != "project"
+
+
+def schedule(options: Options) -> dict:
+    """The progress bar's share of each stage (:mod:`core.progress`) for a run with ``options``."""
+    return DETAIL_STAGES if uses_detail(options) else STAGES
+
+
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, cancel):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
+    from .texture.detail import agreement, detail_albedo, shading_floors
+
+    report = stage_progress(progress, "detail", schedule(opt))
+    report(0.0, "lighting at the working resolution")
+    normals, uvs = [b.normal for b in bakes], [b.uv for b in bakes]
+    floor = shading_floors(sigma, normals, uvs, masks, cells)
+    weights = [b.view_weight for b in bakes]
+    agree = agreement([v.photo for v in inputs.views], masks, uvs, normals, sigma, weights, floor, cells)
+    views = inputs.views
+
+    def load(i):
+        v = views[i]
+        return v.full.load() if v.full is not None else (v.photo, v.clipped)
+
+    cameras = [v.full.camera if v.full is not None else v.camera for v in views]
+    return detail_albedo(
+        inputs.mesh,
+        cameras,
+        load,
+        sigma,
+        albedo,
+        inside,
+        floor,
+        weights=agree,
+        cells=cells,
+        use_clipped=bool(opt.mask_clipped),
+        progress=report,
+        cancel=cancel,
+    )
+
+
 def compute(
     options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None, cancel=None
 ) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
-    ``times`` (if given) receives the seconds spent in "solve" and "fuse".
+    ``times`` (if given) receives the seconds spent in "solve", "fuse" and "detail". The detail stage
+    (:mod:`core.texture.detail`) runs when :func:`uses_detail` and some view has its photo at full resolution
+    (``ViewInput.full``); it replaces the albedo, and the texture method's per-view maps are sampled from it.
 
     Raises
     ------
@@ -78,7 +133,9 @@ def compute(
         solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
-    solve_progress = stage_progress(progress, "solve")
+    detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
+    stages = schedule(opt)
+    solve_progress = stage_progress(progress, "solve", stages)
 
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
@@ -92,14 +149,15 @@ def compute(
             [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
         )
         check_cancel(cancel)
-    transfer = None
+    transfer = cells = None
     if opt.occlusion and opt.method != "project":
-        from .geometry.transfer import pixel_transfer
+        from .geometry.transfer import occlusion_grid, transfer_maps
 
         solve_progress(0.0, "occlusion")
-        transfer = pixel_transfer(
+        cells = occlusion_grid(
             inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes], [b.position for b in bakes], weights
         )
+        transfer = [transfer_maps(cells, b.uv, b.mask, b.normal) for b in bakes]
         check_cancel(cancel)
     problem = Problem(
         images=photos,
@@ -142,12 +200,11 @@ def compute(
     check_cancel(cancel)
 
     t = time.perf_counter()
-    fuse_progress = stage_progress(progress, "fuse")
+    fuse_progress = stage_progress(progress, "fuse", stages)
     fuse_progress(0.0, "texture")
     if opt.method == "texture":
         seen = np.asarray(result.seen, dtype=bool)
         albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
-        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
@@ -157,6 +214,17 @@ def compute(
     times["fuse"] = time.perf_counter() - t
     fuse_progress(1.0, "done")
     check_cancel(cancel)
+
+    if detail:
+        t = time.perf_counter()
+        albedo, reached = _detail(
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
+        )
+        seen = seen | reached
+        times["detail"] = time.perf_counter() - t
+        check_cancel(cancel)
+    if opt.method == "texture":
+        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     return Computed(
         albedo=np.asarray(albedo, dtype=np.float32),
         seen=seen,
@@ -173,5 +241,6 @@ def compute(
             albedo_lam=opt.albedo_lam,
             lighting_mode=lighting,
             occlusion=bool(opt.occlusion),
+            detail=detail,
         ),
     )

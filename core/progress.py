@@ -17,6 +17,7 @@ from .errors import Cancelled
 
 __all__ = [
     "STAGES",
+    "DETAIL_STAGES",
     "stage_progress",
     "check_cancel",
     "TimeLeft",
@@ -28,14 +29,24 @@ __all__ = [
 
 #: Share of the progress bar of each stage of a run, (start, end).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
+#: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`), which
+#: then takes most of the time, and reading the large photos much of the rest.
+DETAIL_STAGES = {
+    "gather": (0.0, 0.15),
+    "bake": (0.15, 0.2),
+    "solve": (0.2, 0.45),
+    "fuse": (0.45, 0.47),
+    "detail": (0.47, 0.95),
+    "write": (0.95, 1.0),
+}
 
 
-def stage_progress(progress, stage: str):
-    """A progress callback for one stage of :data:`STAGES`, mapped into its share of the bar.
+def stage_progress(progress, stage: str, stages: dict | None = None):
+    """A progress callback for one stage of ``stages`` (default :data:`STAGES`), mapped into its share of the bar.
 
     Its messages are prefixed with the stage's name. With ``progress=None`` it does nothing.
     """
-    lo, hi = STAGES[stage]
+    lo, hi = (STAGES if stages is None else stages)[stage]
 
     def report(fraction=0.0, message=""):
         if progress is not None:
