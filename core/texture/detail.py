@@ -9,7 +9,10 @@ view in bands of rows (:func:`core.geometry.bake.bake_rows`), divides every pixe
 as the solve floors it) and adds the quotient into the texel that holds its UV (as
 :func:`core.texture.fuse.fuse_views` does), each pixel weighted by
 
-* its view weight (the cosine to the camera), as the fusion weighs views, and
+* its view weight (the cosine to the camera), as the fusion weighs views,
+* its squared shading, so that the mean is the least-squares albedo of the texel's pixels (as
+  :func:`core.solve.lighting.division_start` takes it) and dark pixels, whose quotient is noisiest, count least,
+  and
 * how well its view agreed with the other views at the working resolution (:func:`agreement`): Tukey's
   biweight of the log ratio between the view's own quotient and the median of all views' quotients, so that a
   highlight, a misregistered edge or a shadow the lighting does not explain, seen in one photo, drops out.
@@ -150,24 +153,30 @@ def _working_pixel(n_full, n_work):
     return np.minimum(((np.arange(n_full) + 0.5) * (n_work / n_full)).astype(np.intp), n_work - 1)
 
 
-def _splat(acc, wsum, texel, w, q):
-    """Add the pixels' quotients ``q`` (P, C) with weights ``w`` (P,) to their texels (flat indices)."""
-    np.add.at(wsum, texel, w)
-    for c in range(q.shape[1]):
-        np.add.at(acc[c], texel, w * q[:, c])
+def _splat(sums, texel, w, q):
+    """Add pixels to their texels (flat indices): weights ``w`` (P,) and quotients ``q`` (P, C).
+
+    ``sums`` holds per texel the sum of w, then of w q per channel.
+    """
+    np.add.at(sums[0], texel, w)
+    for k in range(q.shape[1]):
+        np.add.at(sums[1 + k], texel, w * q[:, k])
 
 
-def _mean(acc, wsum, base, prior):
-    """Each texel's weighted mean with ``prior`` weight of ``base``; texels no pixel reached take the mean of
-    their 3 x 3 neighbourhood's pixels where there are some (photos a little coarser than the texture), else
-    ``base``. Returns the texture and the texels reached (directly or through a neighbour)."""
+def _mean(sums, base, prior):
+    """Each texel's weighted mean quotient, with weight ``prior`` of ``base``.
+
+    A texel no pixel reached takes the mean of its 3 x 3 neighbourhood's pixels where there are some (photos a
+    little coarser than the texture), else ``base``. Returns the texture and the texels reached (directly or
+    through a neighbour).
+    """
     n, c = base.shape[0], base.shape[2]
-    wsum = wsum.reshape(n, n)
+    wsum = sums[0].reshape(n, n)
     near = ndi.uniform_filter(wsum, size=3, mode="constant")
     direct = wsum > 0
     out = np.empty((n, n, c), np.float32)
     for k in range(c):
-        a = acc[k].reshape(n, n)
+        a = sums[1 + k].reshape(n, n)
         b = base[..., k]
         own = (a + prior * b) / (wsum + prior)
         around = (ndi.uniform_filter(a, size=3, mode="constant") + prior * b) / (near + prior)
@@ -233,8 +242,7 @@ def detail_albedo(
     Cancelled
     """
     n, c = base.shape[0], base.shape[2]
-    acc = np.zeros((c, n * n), np.float32)
-    wsum = np.zeros(n * n, np.float32)
+    sums = np.zeros((1 + c, n * n), np.float32)
     corner, face = mesh_normals(mesh)
     floor = np.maximum(np.asarray(floor, np.float32), 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
@@ -261,18 +269,21 @@ def detail_albedo(
             rr, cc = np.nonzero(mask)
             if rr.size:
                 uv = b.uv[rr, cc]
-                q = photo[r0 + rr, cc] / shading(b.normal[rr, cc], uv, sigma[v], cells, floor)
-                w = b.view_weight[rr, cc]
+                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor)
+                q = photo[r0 + rr, cc] / a
+                # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
+                # (division_start's): dark pixels, whose quotient carries the most noise, count least.
+                w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
                 if weights is not None:
                     w = w * weights[v][rows_lo[r0 + rr], cols_lo[cc]]
                 texel = texel_index(uv, n)
                 keep = texel >= 0
                 keep[keep] = inside_flat[texel[keep]]
-                _splat(acc, wsum, texel[keep], w[keep], q[keep])
+                _splat(sums, texel[keep], w[keep], q[keep])
             done += h * cam.width
             if progress is not None:
                 progress(done / total, f"photo {v + 1}/{m}")
         del photo, clipped  # let it go before the next one is read
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
-    return _mean(acc, wsum, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
+    return _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
