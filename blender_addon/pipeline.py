@@ -143,22 +143,20 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         raise DelightError("cannot save: the .blend file has never been saved")
 
     t = time.perf_counter()
-    stages = schedule(options)
-    gather_progress = stage_progress(progress, "gather", stages)
-    gather_progress(0.0, "reading the scene")
+    stage_progress(progress, "gather")(0.0, "reading the scene")
     target = _scene.target_object(scene, options.object_name).name
     out_dir = os.path.abspath(bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath, target)))
     # The detail stage reads the photos again at full resolution: keep copies on the outputs' disk meanwhile.
     photos = PhotoCache(out_dir) if uses_detail(options) else None
     try:
-        return _prepare(scene, options, progress, cancel, out_dir, photos, stages, t)
+        return _prepare(scene, options, progress, cancel, out_dir, photos, t)
     except BaseException:
         if photos is not None:
             photos.close()
         raise
 
 
-def _prepare(scene, options, progress, cancel, out_dir, photos, stages, t):
+def _prepare(scene, options, progress, cancel, out_dir, photos, t):
     import bpy
 
     from . import material as _material
@@ -174,8 +172,10 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, stages, t):
         working_res_mp=options.working_res_mp,
         selected_only=options.selected_only,
         keep_full=photos.put if photos is not None else None,
-        progress=stage_progress(progress, "gather", stages),
+        progress=stage_progress(progress, "gather"),
     )
+    # The bar's shares, now that the photos tell whether the detail stage will run.
+    stages = schedule(uses_detail(options) and any(v.full is not None for v in inputs.views))
     # Fail before the long part if the outputs or the material are in the way.
     _material.check_editable(bpy.data.objects[inputs.object_name])
     # The outputs, uncompressed: an RGBA float32 albedo and one per view.
@@ -302,7 +302,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     opt, inputs = prepared.options, prepared.inputs
     times = dict(prepared.times)
-    stage = stage_progress(progress, "write", schedule(opt))
+    stage = stage_progress(progress, "write")  # the same share in both schedules
     t = time.perf_counter()
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:

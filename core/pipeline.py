@@ -69,16 +69,16 @@ def uses_detail(options: Options) -> bool:
     return bool(options.detail) and options.method != "project"
 
 
-def schedule(options: Options) -> dict:
-    """The progress bar's share of each stage (:mod:`core.progress`) for a run with ``options``."""
-    return DETAIL_STAGES if uses_detail(options) else STAGES
+def schedule(detail: bool) -> dict:
+    """The progress bar's share of each stage (:mod:`core.progress`), for a run with or without the detail stage."""
+    return DETAIL_STAGES if detail else STAGES
 
 
 def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, cancel):
     """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
     from .texture.detail import agreement, detail_albedo, shading_floors
 
-    report = stage_progress(progress, "detail", schedule(opt))
+    report = stage_progress(progress, "detail", DETAIL_STAGES)
     report(0.0, "lighting at the working resolution")
     normals, uvs = [b.normal for b in bakes], [b.uv for b in bakes]
     floor = shading_floors(sigma, normals, uvs, masks, cells)
@@ -134,7 +134,7 @@ def compute(
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
     detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
-    stages = schedule(opt)
+    stages = schedule(detail)
     solve_progress = stage_progress(progress, "solve", stages)
 
     t = time.perf_counter()

@@ -30,13 +30,13 @@ __all__ = [
 #: Share of the progress bar of each stage of a run, (start, end).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
 #: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`), which
-#: then takes most of the time, and reading the large photos much of the rest.
+#: then takes most of the time. Reading the scene has the same share in both, as it comes before the choice.
 DETAIL_STAGES = {
-    "gather": (0.0, 0.15),
-    "bake": (0.15, 0.2),
-    "solve": (0.2, 0.45),
-    "fuse": (0.45, 0.47),
-    "detail": (0.47, 0.95),
+    "gather": (0.0, 0.05),
+    "bake": (0.05, 0.1),
+    "solve": (0.1, 0.4),
+    "fuse": (0.4, 0.42),
+    "detail": (0.42, 0.95),
     "write": (0.95, 1.0),
 }
 

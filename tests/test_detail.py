@@ -205,3 +205,14 @@ def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
             np.ones((N, N), bool),
             np.full(3, 0.1),
         )
+
+
+def test_the_detail_schedule_covers_the_bar_in_order_and_reads_the_scene_as_the_other():
+    from core.progress import DETAIL_STAGES, STAGES
+
+    spans = list(DETAIL_STAGES.values())
+    assert spans[0][0] == 0.0 and spans[-1][1] == 1.0
+    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
+    assert list(DETAIL_STAGES) == ["gather", "bake", "solve", "fuse", "detail", "write"]
+    # The photos are read before the run knows which schedule it has; the files are written in the same share.
+    assert DETAIL_STAGES["gather"] == STAGES["gather"] and DETAIL_STAGES["write"] == STAGES["write"]
