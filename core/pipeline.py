@@ -216,6 +216,9 @@ def compute(
     check_cancel(cancel)
 
     if detail:
+        # Let the solve's arrays go that the stage does not need: it is to hold the texture and one photo.
+        problem = transfer = None
+        result.texture = None
         t = time.perf_counter()
         albedo, reached = _detail(
             inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
