@@ -4,6 +4,9 @@ Run by hand (not a test)::
 
     .venv/bin/python bench/speed.py [--work build/bench/speed] [--json bench/speed.json] [--method texture]
         [--threads N] [--scaling]
+    .venv/bin/python bench/speed.py --case 13x1mp|13x12mp|50x24mp
+
+``--case`` runs one of the large-photo cases of :mod:`bench.full_res` instead.
 
 It renders ``lambert_sky`` at 960x540 with 13 cameras and few samples once (``make_fixtures.generate``; a
 speed test, not an accuracy one; kept in ``--work`` and reused), then runs the headless add-on with default
@@ -130,8 +133,8 @@ def print_scaling(rows):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--work", default=os.path.join(ROOT, "build", "bench", "speed"))
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "speed.json"))
+    p.add_argument("--work", default=None, help="default build/bench/speed (build/bench/full_res for --case)")
+    p.add_argument("--json", default=None, help="default bench/speed.json (bench/speed_<case>.json for --case)")
     p.add_argument("--method", default="texture", choices=["texture", "image", "project"])
     p.add_argument("--threads", type=int, help="threads of the run (default: every core)")
     p.add_argument(
@@ -139,7 +142,19 @@ def main(argv=None):
         action="store_true",
         help="run at 1, 2 and os.cpu_count() threads, then the default, and print the speed-up",
     )
+    p.add_argument(
+        "--case",
+        default="2k",
+        choices=["2k", "13x1mp", "13x12mp", "50x24mp"],
+        help="2k: this scene; the others: large photos (bench/full_res.py)",
+    )
     a = p.parse_args(argv)
+    if a.case != "2k":
+        from bench.full_res import main as full_res
+
+        return full_res(a.case, a.work, a.json)
+    a.work = a.work or os.path.join(ROOT, "build", "bench", "speed")
+    a.json = a.json or os.path.join(ROOT, "bench", "speed.json")
     os.makedirs(a.work, exist_ok=True)
     blend = render_scene(os.path.abspath(a.work))
     started = datetime.datetime.now().isoformat(timespec="seconds")

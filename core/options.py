@@ -291,6 +291,16 @@ SPEC = (
         noun="working resolution (MP)",
     ),
     Option(
+        "detail",
+        "bool",
+        True,
+        "Full-resolution detail",
+        "When the photos are larger than the working resolution, make the albedo again from each photo at its "
+        "full resolution, one photo at a time, under the lighting solved at the working resolution "
+        "(off: the albedo has the working resolution's detail)",
+        flag="--detail",
+    ),
+    Option(
         "texture_size",
         "int",
         1024,
@@ -404,6 +414,7 @@ RUN_FIELDS = (
     "mu",
     "max_iter",
     "working_res_mp",
+    "detail",
     "texture_size",
     "method",
     "threads",

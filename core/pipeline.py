@@ -14,7 +14,7 @@ import numpy as np
 
 from .geometry.texels import texture_layout
 from .options import OPTIONS, Options
-from .progress import check_cancel, stage_progress
+from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem
 from .solve.solver import SolverParams, solve
@@ -22,7 +22,18 @@ from .texture import fill_unseen, fuse_views, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
-__all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "peak_mb", "stage_progress", "check_cancel"]
+__all__ = [
+    "DEFAULTS",
+    "METHODS",
+    "Options",
+    "Computed",
+    "compute",
+    "peak_mb",
+    "uses_detail",
+    "schedule",
+    "stage_progress",
+    "check_cancel",
+]
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
@@ -65,6 +76,49 @@ def peak_mb() -> float | None:
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KiB elsewhere
 
 
+def uses_detail(options: Options) -> bool:
+    """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
+    return bool(options.detail) and options.method != "project"
+
+
+def schedule(detail: bool) -> dict:
+    """The progress bar's share of each stage (:mod:`core.progress`), for a run with or without the detail stage."""
+    return DETAIL_STAGES if detail else STAGES
+
+
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, cancel):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
+    from .texture.detail import agreement, detail_albedo, shading_floors
+
+    report = stage_progress(progress, "detail", DETAIL_STAGES)
+    report(0.0, "lighting at the working resolution")
+    normals, uvs = [b.normal for b in bakes], [b.uv for b in bakes]
+    floor = shading_floors(sigma, normals, uvs, masks, cells)
+    weights = [b.view_weight for b in bakes]
+    agree = agreement([v.photo for v in inputs.views], masks, uvs, normals, sigma, weights, floor, cells)
+    views = inputs.views
+
+    def load(i):
+        v = views[i]
+        return v.full.load() if v.full is not None else (v.photo, v.clipped)
+
+    cameras = [v.full.camera if v.full is not None else v.camera for v in views]
+    return detail_albedo(
+        inputs.mesh,
+        cameras,
+        load,
+        sigma,
+        albedo,
+        inside,
+        floor,
+        weights=agree,
+        cells=cells,
+        use_clipped=bool(opt.mask_clipped),
+        progress=report,
+        cancel=cancel,
+    )
+
+
 def compute(
     options: Options,
     inputs: SceneInputs,
@@ -76,8 +130,10 @@ def compute(
 ) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
-    ``times`` (if given) receives the seconds spent in "solve" and "fuse"; ``peaks`` the process's
-    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve).
+    ``times`` (if given) receives the seconds spent in "solve", "fuse" and "detail"; ``peaks`` the process's
+    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve). The detail stage
+    (:mod:`core.texture.detail`) runs when :func:`uses_detail` and some view has its photo at full resolution
+    (``ViewInput.full``); it replaces the albedo, and the texture method's per-view maps are sampled from it.
 
     Raises
     ------
@@ -98,7 +154,9 @@ def compute(
         solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
-    solve_progress = stage_progress(progress, "solve")
+    detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
+    stages = schedule(detail)
+    solve_progress = stage_progress(progress, "solve", stages)
 
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
@@ -112,13 +170,13 @@ def compute(
             [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
         )
         check_cancel(cancel)
-    transfer = None
+    transfer = cells = None
     if opt.occlusion and opt.method != "project":
-        from .geometry.transfer import pixel_transfer
+        from .geometry.transfer import occlusion_grid, transfer_maps
 
         solve_progress(0.0, "occlusion")
         t_occ = time.perf_counter()
-        transfer = pixel_transfer(
+        cells = occlusion_grid(
             inputs.mesh.tri_pos,
             uvs,
             masks,
@@ -127,6 +185,7 @@ def compute(
             weights,
             threads=opt.threads,
         )
+        transfer = [transfer_maps(cells, b.uv, b.mask, b.normal) for b in bakes]
         occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(
@@ -171,12 +230,11 @@ def compute(
     check_cancel(cancel)
 
     t = time.perf_counter()
-    fuse_progress = stage_progress(progress, "fuse")
+    fuse_progress = stage_progress(progress, "fuse", stages)
     fuse_progress(0.0, "texture")
     if opt.method == "texture":
         seen = np.asarray(result.seen, dtype=bool)
         albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
-        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
@@ -186,6 +244,20 @@ def compute(
     times["fuse"], peaks["fuse"] = time.perf_counter() - t, peak_mb()
     fuse_progress(1.0, "done")
     check_cancel(cancel)
+
+    if detail:
+        # Let the solve's arrays go that the stage does not need: it is to hold the texture and one photo.
+        problem = transfer = None
+        result.texture = None
+        t = time.perf_counter()
+        albedo, reached = _detail(
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
+        )
+        seen = seen | reached
+        times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
+        check_cancel(cancel)
+    if opt.method == "texture":
+        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     return Computed(
         albedo=np.asarray(albedo, dtype=np.float32),
         seen=seen,
@@ -203,5 +275,6 @@ def compute(
             lighting_mode=lighting,
             occlusion=bool(opt.occlusion),
             occlusion_seconds=occlusion_s,
+            detail=detail,
         ),
     )

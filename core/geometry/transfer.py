@@ -27,6 +27,8 @@ the pixel's own ``nu(n)``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..parallel import thread_map
@@ -35,7 +37,16 @@ from .camera import Camera
 from .raycast import raycast
 from .texels import bilinear_texels, texel_index
 
-__all__ = ["sphere_directions", "open_factor", "visibility", "occlusion_transfer", "pixel_transfer"]
+__all__ = [
+    "sphere_directions",
+    "open_factor",
+    "visibility",
+    "occlusion_transfer",
+    "OcclusionGrid",
+    "occlusion_grid",
+    "pixel_transfer",
+    "transfer_maps",
+]
 
 # The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
 # vanish, so an open point sees nothing of band 3, and band 4 at -1/6 of its band-2 weight.
@@ -165,6 +176,61 @@ def occlusion_transfer(
     return occ.astype(np.float32)
 
 
+@dataclass
+class OcclusionGrid:
+    """The occlusion ``T - nu`` on a UV grid (:func:`occlusion_grid`), to be sampled at any pixel's UV."""
+
+    occ: np.ndarray  # (grid * grid, K) float32, zero in cells no pixel landed in
+    valid: np.ndarray  # (grid, grid) bool, the cells some pixel landed in
+
+    def transfer(self, uv, normal) -> np.ndarray:
+        """The transfer at points of UV ``(P, 2)`` and unit normal ``(P, 3)``: ``nu(n)`` plus the occlusion."""
+        k = self.occ.shape[1]
+        idx, wts = bilinear_texels(uv, self.valid)
+        return sh_basis(normal, order=round(k**0.5) - 1) * open_factor(k).astype(np.float32) + np.einsum(
+            "kj,kjc->kc", wts, self.occ[idx]
+        )
+
+
+def occlusion_grid(
+    tri_pos,
+    views_uv,
+    views_mask,
+    views_normal,
+    views_position,
+    views_weight=None,
+    grid: int = 128,
+    n_directions: int = 64,
+    resolution: int = 256,
+    bounce: float = 0.0,
+    order: int = 2,
+    threads=None,
+) -> OcclusionGrid:
+    """The occlusion (:func:`occlusion_transfer`) once per cell of a ``grid x grid`` UV grid.
+
+    Each cell that some pixel lands in is computed at the mean position and
+    normal of those pixels. The arguments are :func:`pixel_transfer`'s.
+    """
+    n_cells = grid * grid
+    acc = np.zeros((n_cells, 7))
+    for i, (uv, mask, nrm, pos) in enumerate(zip(views_uv, views_mask, views_normal, views_position)):
+        cell = texel_index(uv[mask], grid)
+        w = np.ones(cell.size) if views_weight is None else views_weight[i][mask].astype(np.float64) + 1e-3
+        ok = cell >= 0
+        vals = np.concatenate(
+            [w[:, None], w[:, None] * pos[mask].astype(np.float64), w[:, None] * nrm[mask].astype(np.float64)], axis=1
+        )[ok]
+        for j in range(7):
+            acc[:, j] += np.bincount(cell[ok], weights=vals[:, j], minlength=n_cells)
+    used = acc[:, 0] > 0
+    p = acc[used, 1:4] / acc[used, :1]
+    n = acc[used, 4:7]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    occ = np.zeros((n_cells, (order + 1) ** 2), np.float32)
+    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order, threads)
+    return OcclusionGrid(occ=occ, valid=used.reshape(grid, grid))
+
+
 def pixel_transfer(
     tri_pos,
     views_uv,
@@ -183,7 +249,8 @@ def pixel_transfer(
 
     The occlusion (:func:`occlusion_transfer`) is computed once per cell of a
     ``grid x grid`` UV grid that some pixel lands in, at the mean position
-    and normal of those pixels, and sampled bilinearly at each pixel's UV.
+    and normal of those pixels (:func:`occlusion_grid`), and sampled
+    bilinearly at each pixel's UV (:meth:`OcclusionGrid.transfer`).
 
     Parameters
     ----------
@@ -202,30 +269,25 @@ def pixel_transfer(
     list of (H, W, (order + 1)^2) float32 arrays
         Zero outside the masks.
     """
-    n_cells = grid * grid
-    acc = np.zeros((n_cells, 7))
-    for i, (uv, mask, nrm, pos) in enumerate(zip(views_uv, views_mask, views_normal, views_position)):
-        cell = texel_index(uv[mask], grid)
-        w = np.ones(cell.size) if views_weight is None else views_weight[i][mask].astype(np.float64) + 1e-3
-        ok = cell >= 0
-        vals = np.concatenate(
-            [w[:, None], w[:, None] * pos[mask].astype(np.float64), w[:, None] * nrm[mask].astype(np.float64)], axis=1
-        )[ok]
-        for j in range(7):
-            acc[:, j] += np.bincount(cell[ok], weights=vals[:, j], minlength=n_cells)
-    used = acc[:, 0] > 0
-    p = acc[used, 1:4] / acc[used, :1]
-    n = acc[used, 4:7]
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    k = (order + 1) ** 2
-    occ = np.zeros((n_cells, k), np.float32)
-    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order, threads)
-    valid = used.reshape(grid, grid)
-    scale = open_factor(k).astype(np.float32)
-    out = []
-    for uv, mask, nrm in zip(views_uv, views_mask, views_normal):
-        t = np.zeros(mask.shape + (k,), np.float32)
-        idx, wts = bilinear_texels(uv[mask], valid)
-        t[mask] = sh_basis(nrm[mask], order=order) * scale + np.einsum("kj,kjc->kc", wts, occ[idx])
-        out.append(t)
-    return out
+    cells = occlusion_grid(
+        tri_pos,
+        views_uv,
+        views_mask,
+        views_normal,
+        views_position,
+        views_weight,
+        grid,
+        n_directions,
+        resolution,
+        bounce,
+        order,
+        threads,
+    )
+    return [transfer_maps(cells, uv, mask, nrm) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
+
+
+def transfer_maps(cells: OcclusionGrid, uv, mask, normal) -> np.ndarray:
+    """One view's transfer, ``(H, W, K)`` float32, zero outside ``mask``."""
+    t = np.zeros(mask.shape + (cells.occ.shape[1],), np.float32)
+    t[mask] = cells.transfer(uv[mask], normal[mask])
+    return t

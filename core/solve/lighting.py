@@ -51,6 +51,7 @@ __all__ = [
     "fit_lighting",
     "shading_error",
     "division_start",
+    "shading_floor",
 ]
 
 
@@ -205,11 +206,15 @@ def _shade(d, sigma):
     return out
 
 
+def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
+    """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
+    pos = shade[shade > 0]
+    return floor * (float(np.median(pos)) if pos.size else 1.0)
+
+
 def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
     """The shading raised to at least ``floor`` times its median over the positive values."""
-    pos = shade[shade > 0]
-    low = floor * (float(np.median(pos)) if pos.size else 1.0)
-    return np.maximum(shade, low)
+    return np.maximum(shade, shading_floor(shade, floor))
 
 
 def division_start(d, sigma: np.ndarray) -> np.ndarray:
