@@ -156,14 +156,17 @@ def bake_views(scene, inputs, progress=None, cancel=None, threads=None) -> list:
     corner = _corner_normals(mesh)
     face = _face_normals(mesh, corner)
     m = len(inputs.views)
+
+    def report(i):  # the view waited for next (views finish in order)
+        if progress is not None and i < m:
+            progress(i / max(m, 1), f"baking {inputs.views[i].name} ({i + 1}/{m})")
+
     check_cancel(cancel)
-    if progress is not None:
-        progress(0.0, f"baking {m} views")
+    report(0)
 
     def done(i):
-        if progress is not None:
-            progress((i + 1) / max(m, 1), f"baked {inputs.views[i].name} ({i + 1}/{m})")
         check_cancel(cancel)
+        report(i + 1)
 
     out = thread_map(lambda view: bake_view(view.camera, mesh, corner, face), inputs.views, threads, done)
     if progress is not None:

@@ -376,12 +376,12 @@ class _Channel:
                 self._Lx, self._Dx = np.empty(d.n_unknowns, self.ft), np.empty(d.n_unknowns, self.ft)
             values = pair.values(sw, self._pair_values)
             tv_diag = (d.B2T @ sw).astype(self.ft, copy=False)
-            diag = tv_diag + jacobi if d.diagonal_data else tv_diag
+            full_diag = tv_diag + jacobi if d.diagonal_data else tv_diag
             Lx, Dx = self._Lx, self._Dx
 
             def matvec(x):
                 out = pair.matvec_into(values, x, Lx)
-                out += np.multiply(diag, x, out=Dx)
+                out += np.multiply(full_diag, x, out=Dx)
                 if not d.diagonal_data:
                     out += data(x)
                 return out
