@@ -30,14 +30,14 @@ __all__ = [
 
 #: Share of the progress bar of each stage of a run, (start, end).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
-#: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`), which
-#: then takes most of the time. Reading the scene has the same share in both, as it comes before the choice.
+#: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`) after
+#: a solve of the lighting alone. Reading the scene has the same share in both, as it comes before the choice.
 DETAIL_STAGES = {
     "gather": (0.0, 0.05),
     "bake": (0.05, 0.1),
-    "solve": (0.1, 0.4),
-    "fuse": (0.4, 0.42),
-    "detail": (0.42, 0.95),
+    "solve": (0.1, 0.6),
+    "fuse": (0.6, 0.62),
+    "detail": (0.62, 0.95),
     "write": (0.95, 1.0),
 }
 
