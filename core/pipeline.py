@@ -245,10 +245,9 @@ def compute(
         problem = transfer = None
         result.texture = None
         t = time.perf_counter()
-        albedo, reached = _detail(
+        albedo, seen = _detail(
             inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
         )
-        seen = seen | reached
         times["detail"] = time.perf_counter() - t
         check_cancel(cancel)
     if opt.method == "texture":
