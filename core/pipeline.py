@@ -275,10 +275,9 @@ def compute(
         problem = transfer = None
         result.texture = None
         t = time.perf_counter()
-        albedo, reached = _detail(
+        albedo, seen = _detail(
             inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
         )
-        seen = seen | reached
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)
     if opt.method == "texture":

@@ -167,8 +167,7 @@ def _mean(sums, base, prior):
     """Each texel's weighted mean quotient, with weight ``prior`` of ``base``.
 
     A texel no pixel reached takes the mean of its 3 x 3 neighbourhood's pixels where there are some (photos a
-    little coarser than the texture), else ``base``. Returns the texture and the texels reached (directly or
-    through a neighbour).
+    little coarser than the texture), else ``base``. Returns the texture and the texels some pixel reached.
     """
     n, c = base.shape[0], base.shape[2]
     wsum = sums[0].reshape(n, n)
@@ -181,7 +180,7 @@ def _mean(sums, base, prior):
         own = (a + prior * b) / (wsum + prior)
         around = (ndi.uniform_filter(a, size=3, mode="constant") + prior * b) / (near + prior)
         out[..., k] = np.where(direct, own, around)
-    return out, direct | (near > 0)
+    return out, direct
 
 
 def detail_albedo(
@@ -233,7 +232,7 @@ def detail_albedo(
     -------
     albedo : (N, N, C) float32
     reached : (N, N) bool
-        Texels that some full-resolution pixel reached, or reached a neighbour of.
+        Texels that some full-resolution pixel landed in.
 
     Raises
     ------

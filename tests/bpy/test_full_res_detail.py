@@ -48,10 +48,12 @@ def test_full_resolution_detail_beats_the_working_resolution_on_a_fine_albedo(tm
     view = read_exr(os.path.join(tmp_path / "on", cam["file"]))[0]
     assert view.shape[:2] == (cam["size"][1], cam["size"][0])
     assert not [f for f in os.listdir(tmp_path / "on") if f.startswith(PREFIX)]
+    # Scored as bench/accuracy.py scores: each texture over the texels a photo saw, inside the islands.
     e_off, n_off = texture_rmse(rep_off.albedo_path, gt)
     e_on, n_on = texture_rmse(rep_on.albedo_path, gt)
-    assert n_on >= n_off > 0.5 * np.count_nonzero(gt[..., 3] > 0.5)
-    # Measured R / G / B: working resolution 0.277 / 0.252 / 0.216, detail 0.213 / 0.213 / 0.199.
+    assert min(n_off, n_on) > 0.5 * np.count_nonzero(gt[..., 3] > 0.5)
+    # Measured R / G / B: working resolution 0.277 / 0.252 / 0.216 (43242 texels), detail 0.217 / 0.204 / 0.189
+    # (44372 texels).
     assert np.mean(e_on) < 0.9 * np.mean(e_off), (e_on, e_off)
 
 
