@@ -11,6 +11,7 @@ import os
 import platform
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -32,8 +33,11 @@ class Run:
     log: str  # stdout + stderr
 
 
-def run_headless(blend, out_dir, *args) -> Run:
-    """``python -m blender_addon BLEND --out OUT_DIR --overwrite ARGS``; wait, and measure it."""
+def run_headless(blend, out_dir, *args, monitor=None) -> Run:
+    """``python -m blender_addon BLEND --out OUT_DIR --overwrite ARGS``; wait, and measure it.
+
+    ``monitor(process, log_path)``, if given, runs in a thread while the child runs (to sample its memory).
+    """
     cmd = [sys.executable, "-m", "blender_addon", str(blend), "--out", str(out_dir), "--overwrite", *map(str, args)]
     env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
     os.makedirs(out_dir, exist_ok=True)
@@ -41,6 +45,8 @@ def run_headless(blend, out_dir, *args) -> Run:
     t = time.perf_counter()
     with open(log_path, "w") as log:
         p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+        if monitor is not None:
+            threading.Thread(target=monitor, args=(p, log_path), daemon=True).start()
         # wait4 gives this child's own rusage (RUSAGE_CHILDREN would mix all children).
         _, status, usage = os.wait4(p.pid, 0)
         p.returncode = os.waitstatus_to_exitcode(status)

@@ -8,8 +8,8 @@ Two ways to run it, with the same options::
 The options (``--help`` lists them) are built from :data:`core.options.SPEC`,
 the settings the panel shows, and checked by the same :func:`core.options.check`.
 
-It writes ``<object>_albedo.exr``, ``views/<camera>.exr``, ``lighting.json``
-and ``report.json`` into ``--out`` and prints progress lines. Exit status: 0
+It writes ``<object>_albedo.exr``, ``views/<camera>.exr``, ``lighting.json``,
+``lighting.exr`` and ``report.json`` into ``--out`` and prints progress lines. Exit status: 0
 on success; 1 on bad input, with one line ``error: ...`` on stderr, nothing
 written and the .blend untouched (a setting out of its range included), and on
 any other failure (a full disk, out of memory, a bug), with one ``error:`` line

@@ -223,6 +223,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
     working_res: spec_property("working_res_mp")
+    detail: spec_property("detail")
     texture_size: spec_property("texture_size")
     method: spec_property("method")
     out_dir: spec_property("out_dir")
@@ -261,6 +262,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             mu=self.mu,
             max_iter=self.max_iter,
             working_res_mp=self.working_res,
+            detail=self.detail,
             texture_size=self.texture_size,
             method=self.method,
             out_dir=bpy.path.abspath(out) if out else None,

@@ -36,6 +36,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
     working_res: spec_property("working_res_mp", clamp=True)
+    detail: spec_property("detail")
     texture_size: spec_property("texture_size", clamp=True)
     out_dir: spec_property("out_dir")
     overwrite: spec_property("overwrite")
@@ -55,6 +56,7 @@ _SAME = (
     "mu",
     "max_iter",
     "working_res",
+    "detail",
     "texture_size",
     "out_dir",
     "overwrite",
@@ -108,6 +110,9 @@ class VIEW3D_PT_delight(bpy.types.Panel):
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")
         col.prop(s, "working_res")
+        row = col.row()
+        row.active = s.method != "project"
+        row.prop(s, "detail")
         col.prop(s, "texture_size")
 
         col = layout.column(heading="Output")

@@ -29,7 +29,8 @@ from .core.checks import check_photos, check_uv_layout
 from .core.errors import Cancelled, DelightError
 from .core.io import outputs as _outputs
 from .core.io.names import safe_name
-from .core.pipeline import Computed, Options, check_cancel, stage_progress
+from .core.io.photo_cache import PhotoCache
+from .core.pipeline import Computed, Options, check_cancel, peak_mb, schedule, stage_progress, uses_detail
 from .core.pipeline import compute as _compute
 
 
@@ -43,6 +44,13 @@ class Prepared:
     out_dir: str
     times: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    peaks: dict = field(default_factory=dict)  # peak memory (MB) at the end of each stage
+    photos: PhotoCache | None = None  # the full-resolution photos' temporary copies, for the detail stage
+
+    def release(self):
+        """Remove the full-resolution photos' temporary copies (once the detail stage is done, or on failure)."""
+        if self.photos is not None:
+            self.photos.close()
 
 
 @dataclass
@@ -95,9 +103,10 @@ def default_out_dir(blend_path: str, object_name: str) -> str:
     return os.path.join(_blend_folder(blend_path), "delight_" + safe_name(object_name))
 
 
-def _output_names(object_name, camera_names) -> list:
-    """The files of a run besides report.json, relative to the output folder."""
-    return [safe_name(object_name) + "_albedo.exr", *_outputs.view_files(camera_names), _outputs.LIGHTING]
+def _output_names(object_name, camera_names, method) -> list:
+    """The files of a run besides report.json, relative to the output folder: albedo, views, lighting."""
+    lighting = _outputs.lighting_files(estimated=method != "project")
+    return [safe_name(object_name) + "_albedo.exr", *_outputs.view_files(camera_names), *lighting]
 
 
 def _input_files(inputs) -> list:
@@ -127,12 +136,9 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     """
     import bpy
 
-    from . import material as _material
     from . import scene as _scene
-    from .core.geometry import bake as _bake
 
     options.validate()
-    times = {}
     if not options.out_dir:
         _blend_folder(bpy.data.filepath)  # no default folder: say so before reading the scene
     if options.save_blend and not bpy.data.filepath:
@@ -140,6 +146,26 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
 
     t = time.perf_counter()
     stage_progress(progress, "gather")(0.0, "reading the scene")
+    target = _scene.target_object(scene, options.object_name).name
+    out_dir = os.path.abspath(bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath, target)))
+    # The detail stage reads the photos again at full resolution: keep copies on the outputs' disk meanwhile.
+    photos = PhotoCache(out_dir) if uses_detail(options) else None
+    try:
+        return _prepare(scene, options, progress, cancel, out_dir, photos, t)
+    except BaseException:
+        if photos is not None:
+            photos.close()
+        raise
+
+
+def _prepare(scene, options, progress, cancel, out_dir, photos, t):
+    import bpy
+
+    from . import material as _material
+    from . import scene as _scene
+    from .core.geometry import bake as _bake
+
+    times, peaks = {}, {}
     inputs = _scene.gather(
         scene,
         object_name=options.object_name,
@@ -147,27 +173,30 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         images_dir=options.images_dir,
         working_res_mp=options.working_res_mp,
         selected_only=options.selected_only,
+        keep_full=photos.put if photos is not None else None,
+        progress=stage_progress(progress, "gather"),
     )
+    # The bar's shares, now that the photos tell whether the detail stage will run.
+    stages = schedule(uses_detail(options) and any(v.full is not None for v in inputs.views))
     # Fail before the long part if the outputs or the material are in the way.
     _material.check_editable(bpy.data.objects[inputs.object_name])
-    out_dir = os.path.abspath(
-        bpy.path.abspath(options.out_dir or default_out_dir(bpy.data.filepath, inputs.object_name))
-    )
     # The outputs, uncompressed: an RGBA float32 albedo and one per view.
     need = 16 * (int(options.texture_size) ** 2 + sum(v.photo.shape[0] * v.photo.shape[1] for v in inputs.views))
     _outputs.prepare_outputs(
         out_dir,
-        _output_names(inputs.object_name, [v.name for v in inputs.views]),
+        _output_names(inputs.object_name, [v.name for v in inputs.views], options.method),
         options.overwrite,
         _input_files(inputs),
         need_bytes=need,
     )
-    times["gather"] = time.perf_counter() - t
+    times["gather"], peaks["gather"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     t = time.perf_counter()
-    bakes = _bake.bake_views(scene, inputs, progress=stage_progress(progress, "bake"), cancel=cancel)
-    times["bake"] = time.perf_counter() - t
+    bakes = _bake.bake_views(
+        scene, inputs, progress=stage_progress(progress, "bake", stages), cancel=cancel, threads=options.threads
+    )
+    times["bake"], peaks["bake"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     # A camera that does not see the mesh adds nothing: drop it, but not all.
@@ -184,17 +213,34 @@ def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
         bakes = [bakes[i] for i in keep]
     warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
     warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views], [b.mask for b in bakes])
-    return Prepared(options=options, inputs=inputs, bakes=bakes, out_dir=out_dir, times=times, warnings=warnings)
+    return Prepared(
+        options=options,
+        inputs=inputs,
+        bakes=bakes,
+        out_dir=out_dir,
+        times=times,
+        warnings=warnings,
+        peaks=peaks,
+        photos=photos,
+    )
 
 
 def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
-    """Build the problem, solve and fuse (:func:`core.pipeline.compute`; safe in a worker thread)."""
-    return _compute(prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel)
+    """Build the problem, solve and fuse (:func:`core.pipeline.compute`; safe in a worker thread).
+
+    The full-resolution photos' temporary copies are removed at the end, whatever the outcome.
+    """
+    try:
+        return _compute(
+            prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel, peaks=prepared.peaks
+        )
+    finally:
+        prepared.release()
 
 
-def _lighting_json(prepared, computed, files):
+def _lighting_outputs(prepared, computed, files):
     names = [v.name for v in prepared.inputs.views]
-    return _outputs.lighting_json(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
+    return _outputs.lighting_outputs(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
 
 
 def _report_json(prepared, computed, files, times):
@@ -216,6 +262,7 @@ def _report_json(prepared, computed, files, times):
             "mu": opt.mu,
             "max_iter": opt.max_iter,
             "working_res_mp": opt.working_res_mp,
+            "detail": opt.detail,
             "texture_size": opt.texture_size,
             "images_dir": opt.images_dir,
         },
@@ -225,11 +272,13 @@ def _report_json(prepared, computed, files, times):
                 "file": f,
                 "photo": v.source,
                 "size": [int(v.photo.shape[1]), int(v.photo.shape[0])],
+                "full_size": [int(v.full.camera.width), int(v.full.camera.height)] if v.full is not None else None,
                 "pixels_on_mesh": int(np.count_nonzero(b.mask)),
             }
             for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)
         ],
         "times_s": times,
+        "peak_mb": prepared.peaks,
         "iterations": computed.iterations,
         "energy": computed.energy,
         "solver_info": computed.info,
@@ -267,23 +316,23 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     opt, inputs = prepared.options, prepared.inputs
     times = dict(prepared.times)
-    stage = stage_progress(progress, "write")
+    stage = stage_progress(progress, "write")  # the same share in both schedules
     t = time.perf_counter()
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:
         raise DelightError(f"the object {inputs.object_name!r} is gone from the scene")
     _material.check_editable(obj)  # before any file is written
     names = [v.name for v in inputs.views]
-    albedo_file, *view_files, lighting_file = _output_names(inputs.object_name, names)
+    albedo_file, *view_files = _output_names(inputs.object_name, names, opt.method)[: 1 + len(names)]
     stage(0.0, f"files in {prepared.out_dir}")
     contents = {albedo_file: _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)}
     for b, f, values in zip(prepared.bakes, view_files, computed.views):
         contents[f] = _outputs.rgba(values, b.mask)
-    contents[lighting_file] = _lighting_json(prepared, computed, view_files)
+    contents.update(_lighting_outputs(prepared, computed, view_files))
 
     def report():
         # report.json holds the time spent writing the other files.
-        times["write"] = time.perf_counter() - t
+        times["write"], prepared.peaks["write"] = time.perf_counter() - t, peak_mb()
         return _report_json(prepared, computed, view_files, times)
 
     files = _outputs.write_outputs(

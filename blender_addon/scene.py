@@ -12,9 +12,9 @@ from . import photos as _photos
 from .camera import to_core_camera
 from .core.errors import DelightError
 from .core.io.photos import downscale
-from .core.scene import MeshArrays, SceneInputs, ViewInput
+from .core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 
-__all__ = ["gather", "mesh_arrays"]
+__all__ = ["gather", "mesh_arrays", "target_object"]
 
 
 def _scene_and_view_layer(context_or_scene):
@@ -213,8 +213,27 @@ def _cameras(scene, view_layer, camera_names, selected_only):
     return sorted(cams, key=lambda o: o.name)
 
 
+def target_object(context_or_scene, object_name=None):
+    """The mesh object a run delights (as :func:`gather` finds it).
+
+    Raises
+    ------
+    DelightError
+        No such object, not a mesh, no UV map, or no single mesh the cameras look at.
+    """
+    scene, view_layer = _scene_and_view_layer(context_or_scene)
+    return _target(scene, view_layer, object_name)
+
+
 def gather(
-    context_or_scene, object_name=None, camera_names=None, images_dir=None, working_res_mp=1.0, selected_only=False
+    context_or_scene,
+    object_name=None,
+    camera_names=None,
+    images_dir=None,
+    working_res_mp=1.0,
+    selected_only=False,
+    keep_full=None,
+    progress=None,
 ) -> SceneInputs:
     """Read the mesh, the cameras and their photos from the scene.
 
@@ -233,6 +252,12 @@ def gather(
         and their cameras' intrinsics scaled to match. ``0`` or ``None``: keep.
     selected_only : bool
         Without ``camera_names``, take only the selected cameras.
+    keep_full : callable(photo, clipped) -> load, optional
+        Called with each photo that is downscaled, at its full resolution (and its clipped pixels or None);
+        what it returns becomes ``ViewInput.full.load`` (:class:`core.io.photo_cache.PhotoCache.put`). Without
+        it the full-resolution photos are let go.
+    progress : callable(fraction, message), optional
+        Called before each photo is read.
 
     Returns
     -------
@@ -263,9 +288,11 @@ def gather(
     depsgraph = _depsgraph(scene, view_layer)
     mesh = mesh_arrays(obj, depsgraph)
     views, errors = [], []
-    for cam in cams:
+    for i, cam in enumerate(cams):
+        if progress is not None:
+            progress(i / len(cams), f"reading the photo of {cam.name} ({i + 1}/{len(cams)})")
         try:
-            views.append(_view(scene, depsgraph, cam, images_dir, working_res_mp))
+            views.append(_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full))
         except DelightError as exc:
             if not all_cameras:
                 raise
@@ -277,13 +304,20 @@ def gather(
     return SceneInputs(object_name=obj.name, mesh=mesh, views=views, skipped=skipped)
 
 
-def _view(scene, depsgraph, cam, images_dir, working_res_mp):
+def _view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None):
     info = {}
     photo, source = _photos.find_photo(scene, cam, images_dir, info)
     h, w = photo.shape[:2]
     small, scale = downscale(photo, working_res_mp)
     clipped = info.get("clipped")
+    full_clipped = clipped
     if clipped is not None and scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
         clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
-    camera = to_core_camera(cam, scene, w, h, matrix_world=cam.evaluated_get(depsgraph).matrix_world, scale=scale)
-    return ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped)
+    matrix = cam.evaluated_get(depsgraph).matrix_world
+    camera = to_core_camera(cam, scene, w, h, matrix_world=matrix, scale=scale)
+    full = None
+    if keep_full is not None and scale != (1.0, 1.0):
+        full = FullPhoto(
+            camera=to_core_camera(cam, scene, w, h, matrix_world=matrix), load=keep_full(photo, full_clipped)
+        )
+    return ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped, full=full)

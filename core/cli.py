@@ -15,8 +15,11 @@ Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``albedo.exr``
     Texture domain only: the texture, RGBA, 0 where unseen, A = seen texels.
 ``lighting.json``
-    Each view's lighting, 9 SH coefficients per channel (schema in
-    :mod:`core.io.outputs`).
+    Each view's lighting, 9 SH coefficients per channel, and the world
+    lighting (schema in :mod:`core.io.outputs`).
+``lighting.exr``
+    The world lighting as an environment image for Blender's World
+    (:mod:`core.io.envmap`).
 ``report.json``
     Parameters, iterations, energy history, solve time and the files written.
 
@@ -44,7 +47,7 @@ import numpy as np
 
 from .errors import DEBUG_HELP, DelightError, report_failure
 from .io.bundle import load_bundle
-from .io.outputs import LIGHTING, REPORT, channel_names, lighting_json, prepare_outputs, rgba, view_files
+from .io.outputs import REPORT, channel_names, lighting_files, lighting_outputs, prepare_outputs, rgba, view_files
 from .io.outputs import write_outputs as _write_all
 from .options import SOLVER_FIELDS, add_arguments, check
 from .progress import ProgressPrinter
@@ -62,7 +65,7 @@ def _output_files(problem, domain) -> dict:
     files = {"views": view_files(problem.names)}
     if domain == "texture":
         files["albedo"] = "albedo.exr"
-    files["lighting"] = LIGHTING
+    files["lighting"], files["envmap"] = lighting_files()
     return files
 
 
@@ -77,7 +80,7 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
     -------
     dict
         Relative paths of the written files: ``"views"`` (list, in view order),
-        ``"lighting"``, ``"report"`` and, in the texture domain, ``"albedo"``.
+        ``"lighting"``, ``"envmap"``, ``"report"`` and, in the texture domain, ``"albedo"``.
 
     Raises
     ------
@@ -105,7 +108,7 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
         contents[files["albedo"]] = rgba(tex, seen)
     for i, rel in enumerate(files["views"]):
         contents[rel] = rgba(result.views[i], problem.masks[i])
-    contents[files["lighting"]] = lighting_json(problem.names, files["views"], sigma, c, params.domain)
+    contents.update(lighting_outputs(problem.names, files["views"], sigma, c, params.domain))
     files["report"] = REPORT
     energy = [float(e) for e in result.energy]
     report = {
@@ -131,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
         "solve",
         help="solve a problem bundle and write reflectance, albedo and lighting",
         description="Solve a problem bundle (.npz, see core.io.bundle) and write views/<name>.exr, "
-        "albedo.exr (texture domain), lighting.json and report.json into DIR.",
+        "albedo.exr (texture domain), lighting.json, lighting.exr and report.json into DIR.",
     )
     s.add_argument("bundle", metavar="BUNDLE", help="problem bundle (.npz)")
     s.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
@@ -167,7 +170,7 @@ def _solve(args) -> int:
     # Before the solve: a file in the way or an unwritable folder.
     prepare_outputs(
         args.out,
-        [*([files["albedo"]] if "albedo" in files else []), *files["views"], LIGHTING],
+        [*([files["albedo"]] if "albedo" in files else []), *files["views"], *lighting_files()],
         args.overwrite,
         inputs=[args.bundle],
     )
@@ -183,6 +186,7 @@ def _solve(args) -> int:
         max_iter=args.max_iter,
         data_model=args.data_model,
         gauss_newton=args.gauss_newton,
+        threads=args.threads,
     )
     print(f"solving {problem.n_views} views, {domain} domain", file=sys.stderr, flush=True)
     t0 = time.perf_counter()

@@ -291,6 +291,16 @@ SPEC = (
         noun="working resolution (MP)",
     ),
     Option(
+        "detail",
+        "bool",
+        True,
+        "Full-resolution detail",
+        "When the photos are larger than the working resolution, make the albedo again from each photo at its "
+        "full resolution, one photo at a time, under the lighting solved at the working resolution "
+        "(off: the albedo has the working resolution's detail)",
+        flag="--detail",
+    ),
+    Option(
         "texture_size",
         "int",
         1024,
@@ -304,6 +314,20 @@ SPEC = (
         flag="--texture-size",
         metavar="N",
         noun="texture size",
+    ),
+    Option(
+        "threads",
+        "int",
+        None,
+        "Threads",
+        "CPU threads the run uses for the bake, the occlusion and the solve",
+        min=1,
+        max=4096,
+        soft_min=1,
+        soft_max=64,
+        flag="--threads",
+        metavar="N|auto",
+        auto="every core this process may use",
     ),
     Option(
         "out_dir",
@@ -390,15 +414,17 @@ RUN_FIELDS = (
     "mu",
     "max_iter",
     "working_res_mp",
+    "detail",
     "texture_size",
     "method",
+    "threads",
     "out_dir",
     "save_blend",
     "overwrite",
 )
 
 #: The solver's settings that ``python -m core solve`` takes.
-SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton")
+SOLVER_FIELDS = ("lam", "mu", "max_iter", "delta", "data_model", "gauss_newton", "threads")
 
 
 def _number(x) -> str:

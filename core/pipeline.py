@@ -6,6 +6,7 @@ The Blender layer reads the scene and bakes it (:mod:`core.scene`, :mod:`core.ge
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -13,7 +14,7 @@ import numpy as np
 
 from .geometry.texels import texture_layout
 from .options import OPTIONS, Options
-from .progress import check_cancel, stage_progress
+from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem
 from .solve.solver import SolverParams, solve
@@ -21,7 +22,18 @@ from .texture import fill_unseen, fuse_views, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
-__all__ = ["DEFAULTS", "METHODS", "Options", "Computed", "compute", "stage_progress", "check_cancel"]
+__all__ = [
+    "DEFAULTS",
+    "METHODS",
+    "Options",
+    "Computed",
+    "compute",
+    "peak_mb",
+    "uses_detail",
+    "schedule",
+    "stage_progress",
+    "check_cancel",
+]
 
 #: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
 DEFAULTS = SolverParams()
@@ -54,12 +66,92 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
+def peak_mb() -> float | None:
+    """The process's peak resident memory so far, in MB (None where the system does not say)."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KiB elsewhere
+
+
+def uses_detail(options: Options) -> bool:
+    """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
+    return bool(options.detail) and options.method != "project"
+
+
+def schedule(detail: bool) -> dict:
+    """The progress bar's share of each stage (:mod:`core.progress`), for a run with or without the detail stage."""
+    return DETAIL_STAGES if detail else STAGES
+
+
+def _lighting_stage(problem, params, progress, cancel):
+    """The two-stage solve's lighting stage alone, its albedo brought to the full texture.
+
+    With the detail stage the albedo is made again from the full photos, so the working resolution's albedo
+    stage would only give it a prior and a fallback: the lighting stage's albedo, scaled up, serves as well
+    (measured on the fixtures) and saves the albedo stage's time and memory.
+    """
+    from .solve.lighting import lighting_stage
+    from .solve.pyramid import upsample_bilinear
+
+    light, result = lighting_stage(problem, params, progress, cancel)
+    if light is not problem:
+        result.texture, result.seen = upsample_bilinear(result.texture, result.seen, problem.texture)
+    result.info["lighting_only"] = True
+    return result
+
+
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, cancel):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
+    from .texture.detail import agreement, detail_albedo, shading_floors
+
+    report = stage_progress(progress, "detail", DETAIL_STAGES)
+    report(0.0, "lighting at the working resolution")
+    normals, uvs = [b.normal for b in bakes], [b.uv for b in bakes]
+    floor = shading_floors(sigma, normals, uvs, masks, cells)
+    weights = [b.view_weight for b in bakes]
+    agree = agreement([v.photo for v in inputs.views], masks, uvs, normals, sigma, weights, floor, cells)
+    views = inputs.views
+
+    def load(i):
+        v = views[i]
+        return v.full.load() if v.full is not None else (v.photo, v.clipped)
+
+    cameras = [v.full.camera if v.full is not None else v.camera for v in views]
+    return detail_albedo(
+        inputs.mesh,
+        cameras,
+        load,
+        sigma,
+        albedo,
+        inside,
+        floor,
+        weights=agree,
+        cells=cells,
+        use_clipped=bool(opt.mask_clipped),
+        progress=report,
+        cancel=cancel,
+    )
+
+
 def compute(
-    options: Options, inputs: SceneInputs, bakes: list, times: dict | None = None, progress=None, cancel=None
+    options: Options,
+    inputs: SceneInputs,
+    bakes: list,
+    times: dict | None = None,
+    progress=None,
+    cancel=None,
+    peaks: dict | None = None,
 ) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
-    ``times`` (if given) receives the seconds spent in "solve" and "fuse".
+    ``times`` (if given) receives the seconds spent in "solve", "fuse" and "detail"; ``peaks`` the process's
+    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve). The detail stage
+    (:mod:`core.texture.detail`) runs when :func:`uses_detail` and some view has its photo at full resolution
+    (``ViewInput.full``); it replaces the albedo, and the texture method's per-view maps are sampled from it.
+    With it, a two-stage texture solve stops after its lighting stage (:func:`_lighting_stage`).
 
     Raises
     ------
@@ -70,6 +162,8 @@ def compute(
     """
     opt = options
     times = {} if times is None else times
+    peaks = {} if peaks is None else peaks
+    occlusion_s = None
     n = int(opt.texture_size)
     photos = [v.photo for v in inputs.views]
     masks = [b.mask for b in bakes]
@@ -78,7 +172,9 @@ def compute(
         solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
-    solve_progress = stage_progress(progress, "solve")
+    detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
+    stages = schedule(detail)
+    solve_progress = stage_progress(progress, "solve", stages)
 
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
@@ -92,14 +188,23 @@ def compute(
             [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
         )
         check_cancel(cancel)
-    transfer = None
+    transfer = cells = None
     if opt.occlusion and opt.method != "project":
-        from .geometry.transfer import pixel_transfer
+        from .geometry.transfer import occlusion_grid, transfer_maps
 
         solve_progress(0.0, "occlusion")
-        transfer = pixel_transfer(
-            inputs.mesh.tri_pos, uvs, masks, [b.normal for b in bakes], [b.position for b in bakes], weights
+        t_occ = time.perf_counter()
+        cells = occlusion_grid(
+            inputs.mesh.tri_pos,
+            uvs,
+            masks,
+            [b.normal for b in bakes],
+            [b.position for b in bakes],
+            weights,
+            threads=opt.threads,
         )
+        transfer = [transfer_maps(cells, b.uv, b.mask, b.normal) for b in bakes]
+        occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(
         images=photos,
@@ -135,28 +240,44 @@ def compute(
                 max_iter=int(opt.max_iter),
                 albedo_lam=opt.albedo_lam,
                 lighting=lighting,
+                threads=opt.threads,
             )
         )
-        result = solve(problem, params, progress=solve_progress, cancel=cancel)
-    times["solve"] = time.perf_counter() - t
+        if detail and params.domain == "texture" and params.albedo_lam is not None:
+            result = _lighting_stage(problem, params, solve_progress, cancel)
+        else:
+            result = solve(problem, params, progress=solve_progress, cancel=cancel)
+    times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
     t = time.perf_counter()
-    fuse_progress = stage_progress(progress, "fuse")
+    fuse_progress = stage_progress(progress, "fuse", stages)
     fuse_progress(0.0, "texture")
     if opt.method == "texture":
         seen = np.asarray(result.seen, dtype=bool)
         albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
-        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
         fused = fuse_views(maps, problem.masks, uvs, n, view_weight=weights, inside=layout.inside, margin=4)
         albedo, seen = fused[..., :-1], fused[..., -1] > 0
         views = list(maps)
-    times["fuse"] = time.perf_counter() - t
+    times["fuse"], peaks["fuse"] = time.perf_counter() - t, peak_mb()
     fuse_progress(1.0, "done")
     check_cancel(cancel)
+
+    if detail:
+        # Let the solve's arrays go that the stage does not need: it is to hold the texture and one photo.
+        problem = transfer = None
+        result.texture = None
+        t = time.perf_counter()
+        albedo, seen = _detail(
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
+        )
+        times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
+        check_cancel(cancel)
+    if opt.method == "texture":
+        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
     return Computed(
         albedo=np.asarray(albedo, dtype=np.float32),
         seen=seen,
@@ -173,5 +294,7 @@ def compute(
             albedo_lam=opt.albedo_lam,
             lighting_mode=lighting,
             occlusion=bool(opt.occlusion),
+            occlusion_seconds=occlusion_s,
+            detail=detail,
         ),
     )

@@ -17,7 +17,9 @@ from .errors import Cancelled
 
 __all__ = [
     "STAGES",
+    "DETAIL_STAGES",
     "stage_progress",
+    "stage_of",
     "check_cancel",
     "TimeLeft",
     "format_time_left",
@@ -28,20 +30,36 @@ __all__ = [
 
 #: Share of the progress bar of each stage of a run, (start, end).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
+#: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`) after
+#: a solve of the lighting alone. Reading the scene has the same share in both, as it comes before the choice.
+DETAIL_STAGES = {
+    "gather": (0.0, 0.05),
+    "bake": (0.05, 0.1),
+    "solve": (0.1, 0.6),
+    "fuse": (0.6, 0.62),
+    "detail": (0.62, 0.95),
+    "write": (0.95, 1.0),
+}
 
 
-def stage_progress(progress, stage: str):
-    """A progress callback for one stage of :data:`STAGES`, mapped into its share of the bar.
+def stage_progress(progress, stage: str, stages: dict | None = None):
+    """A progress callback for one stage of ``stages`` (default :data:`STAGES`), mapped into its share of the bar.
 
     Its messages are prefixed with the stage's name. With ``progress=None`` it does nothing.
     """
-    lo, hi = STAGES[stage]
+    lo, hi = (STAGES if stages is None else stages)[stage]
 
     def report(fraction=0.0, message=""):
         if progress is not None:
             progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), f"{stage}: {message}" if message else stage)
 
     return report
+
+
+def stage_of(message: str) -> str | None:
+    """The stage a :func:`stage_progress` message names (``"solve: iteration 3"`` -> ``"solve"``), or None."""
+    head = message.split(":", 1)[0].strip() if message else ""
+    return head if head in STAGES or head in DETAIL_STAGES else None
 
 
 def check_cancel(cancel) -> None:
@@ -54,8 +72,10 @@ class TimeLeft:
     """An estimate of the seconds a run has left, from its progress fraction over time.
 
     Feed it ``(fraction, time)`` pairs with :meth:`update`. The rate is measured from the first pair (so time
-    spent before the estimate started, such as the GUI's bake, does not count) and the estimate is smoothed
-    over the updates, so that one quick or slow step does not make it jump.
+    spent before the estimate started, such as the GUI's bake, does not count), or from the first pair of the
+    current stage when the pairs name their stage (the stages' shares of the bar are fixed, their durations
+    are not: a run's last long stage, such as the detail stage after the solve, then predicts its own end),
+    and the estimate is smoothed over the updates, so that one quick or slow step does not make it jump.
 
     Parameters
     ----------
@@ -71,15 +91,20 @@ class TimeLeft:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
         self.warmup, self.min_progress, self.smoothing = warmup, min_progress, smoothing
-        self._start = None  # (fraction, time) of the first pair
+        self._start = None  # (fraction, time) of the first pair (of the stage)
+        self._stage = None
         self._estimate = None  # seconds left at self._time
         self._time = None
 
-    def update(self, fraction: float, now: float) -> float | None:
-        """Take the run's ``fraction`` (0..1) at time ``now`` (seconds); return :meth:`estimate` at ``now``."""
+    def update(self, fraction: float, now: float, stage: str | None = None) -> float | None:
+        """Take the run's ``fraction`` (0..1) at time ``now`` (seconds); return :meth:`estimate` at ``now``.
+
+        A new ``stage`` (not None) starts the rate's measurement again; the last estimate counts down meanwhile.
+        """
         fraction, now = min(max(float(fraction), 0.0), 1.0), float(now)
-        if self._start is None:
+        if self._start is None or (stage is not None and stage != self._stage):
             self._start = (fraction, now)
+            self._stage = stage
         f0, t0 = self._start
         if fraction >= 1.0:
             self._estimate, self._time = 0.0, now
@@ -156,7 +181,7 @@ class ProgressState:
         self.fraction = min(max(float(fraction), 0.0), 1.0)
         if message:
             self.message = message
-        self.time_left.update(self.fraction, self.clock())
+        self.time_left.update(self.fraction, self.clock(), stage_of(self.message))
 
     def bar(self) -> tuple[float, str]:
         """What the bar shows: ``(factor, text)``, e.g. ``(0.62, "solve: iteration 12/40 — about 35 s left")``."""
@@ -188,7 +213,7 @@ class ProgressPrinter:
 
     def __call__(self, fraction, message=""):
         fraction = float(fraction)
-        left = format_time_left(self.time_left.update(fraction, self.clock()))
+        left = format_time_left(self.time_left.update(fraction, self.clock(), stage_of(message)))
         if message != self._last[0] or abs(fraction - self._last[1]) >= self.step:
             print(
                 f"delight: {100 * fraction:5.1f}% {message}" + (f" ({left})" if left else ""),

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MeshArrays", "ViewInput", "SceneInputs"]
+__all__ = ["MeshArrays", "FullPhoto", "ViewInput", "SceneInputs"]
 
 
 @dataclass
@@ -37,6 +38,15 @@ class MeshArrays:
 
 
 @dataclass
+class FullPhoto:
+    """A photo at its own resolution, larger than the working one, read only when the detail stage needs it."""
+
+    camera: object  # core.geometry.camera.Camera on the full-resolution pixel grid
+    # () -> (photo (H, W, 3) float32 linear, row 0 at the top; clipped (H, W) bool or None), read anew on each call
+    load: Callable
+
+
+@dataclass
 class ViewInput:
     """One camera and its photo, at the working resolution."""
 
@@ -47,6 +57,8 @@ class ViewInput:
     # (H, W) bool at the working resolution: pixels that touch an 8-bit photo's ceiling in some channel
     # (core.io.photos.clipped_pixels); None for float photos, which do not clip.
     clipped: np.ndarray | None = None
+    # The photo at its full resolution when ``photo`` is a downscaled copy (None: ``photo`` is the full one).
+    full: FullPhoto | None = None
 
 
 @dataclass

@@ -8,6 +8,7 @@ import pytest
 
 from core.cli import SH_BASIS, main, write_outputs
 from core.io.bundle import load_bundle, save_bundle
+from core.io.envmap import envmap_image, radiance_sh
 from core.io.exr import read_exr
 from core.io.names import unique_names
 from core.solve.problem import Correspondences, Problem, TextureLayout
@@ -322,6 +323,7 @@ def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
     assert written == sorted(
         [
             "run/out/albedo.exr",
+            "run/out/lighting.exr",
             "run/out/lighting.json",
             "run/out/report.json",
             "run/out/views/_._.._x.exr",
@@ -349,6 +351,11 @@ def test_write_outputs_keeps_everything_inside_the_folder(tmp_path):
     assert [v["name"] for v in light["views"]] == ["../../x", "a/b", "A/B"]
     assert [v["file"] for v in light["views"]] == files["views"]
     np.testing.assert_array_equal(np.array([v["sh"] for v in light["views"]]), result.sigma)
+    # The world lighting: the views' mean, as the environment image beside lighting.json.
+    assert files["envmap"] == light["world"]["file"] == "lighting.exr"
+    world = radiance_sh(result.sigma.mean(axis=0))
+    np.testing.assert_allclose(light["world"]["radiance_sh"], world)
+    np.testing.assert_array_equal(read_exr(out / "lighting.exr")[0], envmap_image(world))
 
     report = json.loads((out / "report.json").read_text())
     assert report["params"]["lam"] == 2.0 and report["params"]["domain"] == "texture"
@@ -368,6 +375,8 @@ def test_write_outputs_grey_image_domain(tmp_path):
         np.testing.assert_array_equal(rgba[m, k], result.views[1][m, 0])
     light = json.loads((tmp_path / "lighting.json").read_text())
     assert light["channels"] == ["Y"] and np.shape(light["views"][0]["sh"]) == (1, 9)
+    env, channels = read_exr(tmp_path / "lighting.exr")  # grey lighting, an RGB sky for Blender
+    assert channels == ["R", "G", "B"] and (env[..., 0] == env[..., 2]).all()
     assert json.loads((tmp_path / "report.json").read_text())["energy"] == [3.0, None]
 
 

@@ -30,6 +30,7 @@ BAD = [
     ("max_iter", 0, "iterations must be an integer of at least 1, got 0"),
     ("mu", -0.5, "mu must be a number of at least 0, got -0.5"),
     ("method", "magic", "method must be one of texture, image, project, got 'magic'"),
+    ("threads", 0, "threads must be an integer between 1 and 4096 or auto, got 0"),
 ]
 
 

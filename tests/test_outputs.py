@@ -21,6 +21,7 @@ from core.io.outputs import (
     check_inputs,
     check_writable,
     lighting_json,
+    lighting_outputs,
     own_files,
     plan_outputs,
     prepare_outputs,
@@ -65,9 +66,8 @@ def run_files(names=("a", "b"), value=0.25, sigma_value=1.0):
     contents = {"thing_albedo.exr": rgba(np.full((4, 4, 3), value), np.ones((4, 4)))}
     for f in files:
         contents[f] = rgba(np.full((3, 5, 3), value), np.eye(3, 5, dtype=bool))
-    contents[outputs.LIGHTING] = lighting_json(
-        list(names), files, np.full((len(names), 3, 9), sigma_value), method="texture"
-    )
+    sigma = None if sigma_value is None else np.full((len(names), 3, 9), sigma_value)
+    contents.update(lighting_outputs(list(names), files, sigma, method="texture"))
     return contents
 
 
@@ -75,8 +75,13 @@ def test_lighting_json_schema():
     light = lighting_json(
         ["cam/1", "cam 2"], view_files(["cam/1", "cam 2"]), np.arange(54.0).reshape(2, 3, 9), method="image"
     )
-    assert list(light) == ["sh_basis", "channels", "normals", "method", "views"]
+    assert list(light) == ["sh_basis", "channels", "normals", "method", "world", "views"]
     assert light["sh_basis"] == list(SH_BASIS_NAMES) and len(light["sh_basis"]) == 9
+    # The world lighting: the views' mean, and the radiance that gives it (pi / A_l per band).
+    mean = np.arange(54.0).reshape(2, 3, 9).mean(axis=0)
+    assert light["world"]["file"] == "lighting.exr"
+    np.testing.assert_allclose(light["world"]["sh"], mean)
+    np.testing.assert_allclose(light["world"]["radiance_sh"], mean * [1.5, 1.5, 1.5, 1, 4, 4, 4, 4, 4])
     assert light["channels"] == ["R", "G", "B"] and light["normals"] == "world space, unit length"
     assert light["views"][1] == {
         "name": "cam 2",
@@ -85,6 +90,7 @@ def test_lighting_json_schema():
     }
     none = lighting_json(["a"], ["views/a.exr"], None, 3, "project")
     assert none["views"] == [{"name": "a", "file": "views/a.exr", "sh": None}] and none["channels"] == ["R", "G", "B"]
+    assert none["world"] is None
     assert lighting_json(["a"], ["views/a.exr"], np.zeros((1, 1, 9)))["channels"] == ["Y"]
     with pytest.raises(ValueError, match="sigma has shape"):
         lighting_json(["a", "b"], ["views/a.exr", "views/b.exr"], np.zeros((1, 3, 9)))
@@ -104,7 +110,7 @@ def test_rgba_packs_grey_nan_and_alpha():
 def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_path):
     out = tmp_path / "out"
     written = write_outputs(out, run_files(), {"run": 1})
-    rels = ["thing_albedo.exr", "views/a.exr", "views/b.exr", "lighting.json", "report.json"]
+    rels = ["thing_albedo.exr", "views/a.exr", "views/b.exr", "lighting.json", "lighting.exr", "report.json"]
     assert written == [str(out / r) for r in rels]
     assert sorted(snapshot(out)) == sorted(rels)  # no staging folder left
     report = json.loads((out / "report.json").read_text())
@@ -115,12 +121,42 @@ def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_p
     (out / "notes.txt").write_text("the user's")
     write_outputs(out, run_files(names=("a",), value=0.5, sigma_value=2.0), lambda: {"run": 2})
     assert sorted(snapshot(out)) == sorted(
-        ["thing_albedo.exr", "views/a.exr", "lighting.json", "report.json", "notes.txt"]
+        ["thing_albedo.exr", "views/a.exr", "lighting.json", "lighting.exr", "report.json", "notes.txt"]
     )
     assert read_exr(out / "views" / "a.exr")[0][0, 0, 0] == 0.5
     assert json.loads((out / "lighting.json").read_text())["views"][0]["sh"][0][0] == 2.0
     assert json.loads((out / "report.json").read_text())["run"] == 2
     assert (out / "notes.txt").read_text() == "the user's"
+
+
+def test_the_environment_image_is_written_replaced_and_removed_with_the_lighting(tmp_path):
+    out = tmp_path / "out"
+    write_outputs(out, run_files(sigma_value=1.0), {"run": 1})
+    env, channels = read_exr(out / "lighting.exr")
+    # The lighting 1 in every coefficient, as a radiance at the top row (+Z): 1 + 1.5 + 4 * 2.
+    assert channels == ["R", "G", "B"] and env.shape == (128, 256, 3) and env.dtype == np.float32
+    assert abs(env[0].mean() - 10.5) < 0.05
+    assert "lighting.exr" in json.loads((out / "report.json").read_text())["files"]
+
+    write_outputs(out, run_files(sigma_value=2.0), {"run": 2})  # Delight's own: replaced, no --overwrite
+    np.testing.assert_allclose(read_exr(out / "lighting.exr")[0], 2 * env, rtol=1e-6)
+
+    write_outputs(out, run_files(sigma_value=None), {"run": 3})  # no lighting estimated: the old image goes
+    assert "lighting.exr" not in snapshot(out)
+    assert json.loads((out / "lighting.json").read_text())["world"] is None
+    assert "lighting.exr" not in json.loads((out / "report.json").read_text())["files"]
+
+
+def test_an_environment_image_of_the_users_is_never_written(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "lighting.exr").write_bytes(b"the user's sky")
+    with pytest.raises(DelightError, match="lighting.exr already exists and was not written by Delight"):
+        write_outputs(out, run_files(), {})
+    # An input (the HDRI the scene's world uses) is refused even with overwrite.
+    with pytest.raises(DelightError, match="would overwrite the input"):
+        write_outputs(out, run_files(), {}, overwrite=True, inputs=[str(out / "lighting.exr")])
+    assert snapshot(out) == {"lighting.exr": b"the user's sky"}
 
 
 def test_a_foreign_file_is_refused_unless_overwrite(tmp_path):
@@ -329,9 +365,16 @@ def test_cli_reruns_refuses_foreign_files_and_unwritable_folders_before_the_solv
     for _ in range(2):  # the second run replaces the first's files without --overwrite
         r = solve_cli(bundle, "--out", out)
         assert r.returncode == 0, r.stderr
-    assert sorted(snapshot(out)) == ["albedo.exr", "lighting.json", "report.json", "views/left.exr", "views/right.exr"]
+    assert sorted(snapshot(out)) == [
+        "albedo.exr",
+        "lighting.exr",
+        "lighting.json",
+        "report.json",
+        "views/left.exr",
+        "views/right.exr",
+    ]
     light = json.loads((out / "lighting.json").read_text())
-    assert list(light) == ["sh_basis", "channels", "normals", "method", "views"]
+    assert list(light) == ["sh_basis", "channels", "normals", "method", "world", "views"]
     assert [(v["name"], v["file"]) for v in light["views"]] == [
         ("left", "views/left.exr"),
         ("right", "views/right.exr"),

@@ -123,3 +123,24 @@ def test_progress_printer_adds_the_time_left():
         "delight:  25.0% bake: b (about 15 s left)",
         "delight:  50.0% solve: c (about 10 s left)",
     ]
+
+
+def test_time_left_measures_each_stage_afresh():
+    # The solve crawls over 0.1 -> 0.4 in 300 s; the detail stage then runs at 0.05 a second from 0.42.
+    t = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
+    t.update(0.1, 0.0, "solve")
+    assert t.update(0.4, 300.0, "solve") == pytest.approx(600.0)  # 0.6 left at 0.001 per second
+    assert t.update(0.42, 310.0, "detail") == pytest.approx(590.0)  # a new stage: the last estimate counts down
+    assert t.update(0.52, 312.0, "detail") == pytest.approx(0.48 / 0.05)  # its own rate from its first pair
+    # Without stages the rate is the run's since the first pair.
+    plain = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
+    plain.update(0.1, 0.0)
+    plain.update(0.4, 300.0)
+    assert plain.update(0.52, 312.0) == pytest.approx(312.0 * 0.48 / 0.42)
+
+
+def test_progress_lines_name_their_stage():
+    from core.progress import stage_of
+
+    assert stage_of("detail: photo 3/50") == "detail" and stage_of("solve") == "solve"
+    assert stage_of("reading") is None and stage_of("") is None

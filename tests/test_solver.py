@@ -253,3 +253,12 @@ def test_a_texture_finer_than_the_photos_is_solved_coarser_and_sampled_up():
     assert np.all(
         scaled_rmse(capped.texture, sc.albedo_texture, both) < scaled_rmse(full.texture, sc.albedo_texture, both) + 0.02
     )
+
+
+@pytest.mark.parametrize("albedo_lam", [None, 1.0])
+def test_the_same_result_on_any_number_of_threads(fixed, albedo_lam):
+    params = SolverParams(lam=2.0, max_iter=8, coarse_iter=5, albedo_lam=albedo_lam, light_size=32, lighting="coupled")
+    one = solve(fixed.problem, replace(params, threads=1))
+    three = solve(fixed.problem, replace(params, threads=3))
+    assert np.array_equal(one.texture, three.texture, equal_nan=True)
+    assert np.array_equal(one.sigma, three.sigma) and one.energy == three.energy

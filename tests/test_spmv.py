@@ -1,7 +1,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from core.solve.spmv import matvec_into
+from core.solve.spmv import PairNormal, matvec_into
 
 
 def _matrix():
@@ -25,3 +25,30 @@ def test_matvec_into_falls_back_to_the_product_for_other_dtypes():
     out64 = np.empty(200)
     matvec_into(A.T.tocsr(), np.ones(300, np.float32), out64)
     np.testing.assert_allclose(out64, A.T @ np.ones(300, np.float32), rtol=1e-5)
+
+
+def test_pair_normal_is_the_weighted_normal_matrix_off_its_diagonal():
+    # Rows c1 x_a + c2 x_b, one of them twice (two rows between the same unknowns are summed).
+    rng = np.random.default_rng(2)
+    a = rng.integers(0, 50, 120)
+    b = (a + rng.integers(1, 49, 120)) % 50
+    a, b = np.append(a, a[0]), np.append(b, b[0])
+    rows = np.repeat(np.arange(a.size), 2)
+    coef = rng.uniform(-2, 2, 2 * a.size).astype(np.float32)
+    B = sp.csr_matrix((coef, (rows, np.stack([a, b], 1).ravel())), shape=(a.size, 50))
+    BT = B.T.tocsr()
+    pair = PairNormal.of(B, BT)
+    s = rng.uniform(0.1, 3, a.size).astype(np.float32)
+    x = rng.standard_normal(50).astype(np.float32)
+    L = (B.T @ sp.diags(s) @ B).toarray()
+    np.fill_diagonal(L, 0)
+    values = pair.values(s, np.empty(pair.edge.size, np.float32))
+    out = np.full(50, np.nan, np.float32)
+    assert pair.matvec_into(values, x, out) is out
+    np.testing.assert_allclose(out, L @ x, rtol=1e-4, atol=1e-4)
+
+
+def test_pair_normal_refuses_rows_of_another_width():
+    B = sp.csr_matrix(np.array([[1.0, -1.0, 0.0], [1.0, -0.5, -0.5]], np.float32))
+    assert PairNormal.of(B, B.T.tocsr()) is None
+    assert PairNormal.of(sp.csr_matrix((0, 3), dtype=np.float32), sp.csr_matrix((3, 0), dtype=np.float32)) is None

@@ -158,3 +158,13 @@ def test_open_surface_transfer_at_order_4():
     norm = np.array([2 * np.pi / 3] * 3 + [np.pi] + [np.pi / 4] * 21)
     expected = open_factor(25) * sh_basis(n, np.float64, order=4)
     assert np.abs(direct / norm - expected).max() < 2e-3
+
+
+def test_visibility_is_the_same_on_any_number_of_threads():
+    tris = _floor_and_wall()
+    rng = np.random.default_rng(0)
+    p = np.stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.5, 1.5, 40), np.zeros(40)], axis=1)
+    n = np.tile([0.0, 0.0, 1.0], (40, 1))
+    dirs = sphere_directions(16)
+    one = visibility(p, n, tris, dirs, resolution=64, threads=1)
+    assert np.array_equal(one, visibility(p, n, tris, dirs, resolution=64, threads=3))

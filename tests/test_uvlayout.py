@@ -284,3 +284,27 @@ def test_a_stretched_triangle_across_islands_does_not_move_their_texels():
     np.testing.assert_array_equal(layout.texel_pos[both], base.texel_pos[both])
     assert (layout.inside & ~base.inside).any()  # the gap texels it alone covers
     np.testing.assert_array_equal(layout.seam_pairs, base.seam_pairs)
+
+
+def test_a_sliver_across_islands_counts_as_stretched_by_its_long_edge():
+    # An n-gon's triangle can be a sliver in UV: its area per surface area looks normal, but one edge runs
+    # from one island to the other. It gets the low priority and makes no seam pairs all the same.
+    from core.geometry.texels import STRETCH_FACTOR, triangle_areas, uv_stretched
+
+    left_uv = np.array([[[0.05, 0.05], [0.45, 0.05], [0.45, 0.95]], [[0.05, 0.05], [0.45, 0.95], [0.05, 0.95]]])
+    pos = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], float)
+    tri_uv = np.concatenate([left_uv, left_uv + [0.5, 0.0]])
+    tri_pos = np.concatenate([pos, pos + [0, 0, 5.0]])
+    tri_vert = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    sliver_uv = np.array([[[0.45, 0.5], [0.95, 0.505], [0.95, 0.5]]])  # 0.5 long, 0.005 wide in UV
+    sliver_pos = np.array([[[1, 0.5, 0], [1.04, 0.5, 0], [1.02, 0.5346, 0]]])  # 0.04 a side on the surface
+    all_uv, all_pos = np.concatenate([tri_uv, sliver_uv]), np.concatenate([tri_pos, sliver_pos])
+    uv_area, area = triangle_areas(all_uv, all_pos)
+    ratio = uv_area / area
+    assert ratio[4] < STRETCH_FACTOR * np.median(ratio)  # the area alone would not tell
+    assert uv_stretched(all_uv, all_pos).tolist() == [False] * 4 + [True]
+    for n in (32, 128):
+        base = texture_layout(tri_uv, tri_pos, tri_vert, n)
+        layout = texture_layout(all_uv, all_pos, np.concatenate([tri_vert, [[1, 8, 9]]]), n)
+        np.testing.assert_array_equal(layout.texel_pos[base.inside], base.texel_pos[base.inside])
+        np.testing.assert_array_equal(layout.seam_pairs, base.seam_pairs)

@@ -15,10 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DelightError
+from ..parallel import thread_map
 from ..progress import check_cancel
+from ..scene import MeshArrays
+from .camera import Camera
 from .raycast import raycast
 
-__all__ = ["ViewBake", "bake_view", "bake_views"]
+__all__ = ["ViewBake", "bake_view", "bake_views", "bake_rows", "mesh_normals"]
 
 
 @dataclass
@@ -52,6 +55,12 @@ def _face_normals(mesh, corner_normals):
     return ng
 
 
+def mesh_normals(mesh):
+    """The mesh's corner normals ``(T, 3, 3)`` and face normals ``(T, 3)``, as :func:`bake_view` takes them."""
+    corner = _corner_normals(mesh)
+    return corner, _face_normals(mesh, corner)
+
+
 def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
     """Bake one :class:`core.geometry.camera.Camera` against :class:`scene.MeshArrays`."""
     if corner_normals is None:
@@ -83,7 +92,43 @@ def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
     return ViewBake(mask=mask, normal=normal, uv=uv, position=position, view_weight=weight)
 
 
-def bake_views(scene, inputs, progress=None, cancel=None) -> list:
+def bake_rows(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):
+    """Bake ``camera`` in bands of whole rows of about ``max_pixels`` pixels, to bound the memory of a large photo.
+
+    Each band is :func:`bake_view` of the camera cropped to its rows, against
+    the triangles whose projection reaches them (all triangles that cross the
+    camera plane), so it equals the same rows of the whole view's bake.
+
+    Yields
+    ------
+    first_row : int
+    bake : ViewBake
+        The band's rows.
+    """
+    if corner_normals is None or face_normals is None:
+        corner_normals, face_normals = mesh_normals(mesh)
+    h, w = camera.height, camera.width
+    rows = max(1, int(max_pixels) // w)
+    vc = np.asarray(mesh.tri_pos, np.float64) @ camera.R.T + camera.t
+    z = vc[..., 2]
+    front = np.all(z > 0, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y = camera.K[1, 1] * vc[..., 1] / z + camera.K[1, 2]
+    y_lo = np.where(front, y.min(axis=1), -np.inf)
+    y_hi = np.where(front, y.max(axis=1), np.inf)
+    behind = np.all(z <= 0, axis=1)  # no ray reaches these
+    del vc, z, y
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        sel = np.flatnonzero(~behind & (y_hi >= r0 - 1) & (y_lo <= r1))
+        k = camera.K.copy()
+        k[1, 2] -= r0
+        band = Camera(K=k, R=camera.R, t=camera.t, width=w, height=r1 - r0)
+        part = MeshArrays(tri_pos=mesh.tri_pos[sel], tri_uv=mesh.tri_uv[sel], tri_vert=mesh.tri_vert[sel], uv_map="")
+        yield r0, bake_view(band, part, corner_normals[sel], face_normals[sel])
+
+
+def bake_views(scene, inputs, progress=None, cancel=None, threads=None) -> list:
     """Bake each view of :class:`scene.SceneInputs`; one :class:`ViewBake` per view, in order.
 
     Parameters
@@ -96,6 +141,9 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     cancel : callable() -> bool, optional
         Checked between views; when it returns True, :class:`core.errors.Cancelled`
         is raised.
+    threads : int or None
+        Views baked at once (None: every available core). ``progress`` and
+        ``cancel`` are called from the calling thread only.
 
     Raises
     ------
@@ -107,13 +155,20 @@ def bake_views(scene, inputs, progress=None, cancel=None) -> list:
     mesh = inputs.mesh
     corner = _corner_normals(mesh)
     face = _face_normals(mesh, corner)
-    out = []
     m = len(inputs.views)
-    for i, view in enumerate(inputs.views):
+
+    def report(i):  # the view waited for next (views finish in order)
+        if progress is not None and i < m:
+            progress(i / max(m, 1), f"baking {inputs.views[i].name} ({i + 1}/{m})")
+
+    check_cancel(cancel)
+    report(0)
+
+    def done(i):
         check_cancel(cancel)
-        if progress is not None:
-            progress(i / max(m, 1), f"baking {view.name} ({i + 1}/{m})")
-        out.append(bake_view(view.camera, mesh, corner, face))
+        report(i + 1)
+
+    out = thread_map(lambda view: bake_view(view.camera, mesh, corner, face), inputs.views, threads, done)
     if progress is not None:
         progress(1.0, "baked")
     if not any(b.mask.any() for b in out):

@@ -267,10 +267,13 @@ def triangle_areas(tri_uv, tri_pos):
 
 
 def uv_stretched(tri_uv, tri_pos, factor=STRETCH_FACTOR):
-    """(T,) bool: triangles whose UV area per surface area is ``factor`` times off the median.
+    """(T,) bool: triangles stretched ``factor`` times in the UV map, against the median of the mesh.
 
+    A triangle counts when its UV area per surface area is ``factor`` times off the median, or when
+    one of its edges is ``factor`` times longer in UV, per surface length, than the median edge.
     An n-gon whose corners lie in two UV islands is split into such triangles: they span the gap
-    between the islands and cover texels that belong to other faces.
+    between the islands and cover texels that belong to other faces. The edge test catches the
+    slivers among them, whose area looks normal.
     """
     uv_area, area = triangle_areas(tri_uv, tri_pos)
     usable = (uv_area > 0) & (area > 0)
@@ -278,7 +281,14 @@ def uv_stretched(tri_uv, tri_pos, factor=STRETCH_FACTOR):
         return np.zeros(len(tri_uv), dtype=bool)
     ratio = uv_area / np.where(area > 0, area, 1.0)
     median = float(np.median(ratio[usable]))
-    return usable & ((ratio > factor * median) | (ratio < median / factor))
+    stretched = usable & ((ratio > factor * median) | (ratio < median / factor))
+    tri_uv = np.asarray(tri_uv, dtype=np.float64)
+    tri_pos = np.asarray(tri_pos, dtype=np.float64)
+    uv_len = np.linalg.norm(np.roll(tri_uv, -1, axis=1) - tri_uv, axis=2)
+    length = np.linalg.norm(np.roll(tri_pos, -1, axis=1) - tri_pos, axis=2)
+    edge_ratio = uv_len / np.where(length > 0, length, 1.0)
+    edge_median = float(np.median(edge_ratio[usable]))
+    return stretched | (usable & np.any(edge_ratio > factor * edge_median, axis=1))
 
 
 def _rasterise(q, tri_pos, n, margin, low_priority=None):

@@ -27,14 +27,26 @@ the pixel's own ``nu(n)``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..parallel import thread_map
 from ..solve.sh import sh_basis, sh_degree
 from .camera import Camera
 from .raycast import raycast
 from .texels import bilinear_texels, texel_index
 
-__all__ = ["sphere_directions", "open_factor", "visibility", "occlusion_transfer", "pixel_transfer"]
+__all__ = [
+    "sphere_directions",
+    "open_factor",
+    "visibility",
+    "occlusion_transfer",
+    "OcclusionGrid",
+    "occlusion_grid",
+    "pixel_transfer",
+    "transfer_maps",
+]
 
 # The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
 # vanish, so an open point sees nothing of band 3, and band 4 at -1/6 of its band-2 weight.
@@ -78,7 +90,9 @@ def _shadow_camera(direction, centre, radius, resolution):
     return Camera(K=K, R=R, t=-R @ C, width=resolution, height=resolution), 2.04 * radius / resolution
 
 
-def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5):
+def visibility(
+    points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, threads=None
+):
     """Whether each point sees out of the mesh in each direction, ``(P, K)`` bool.
 
     Parameters
@@ -95,6 +109,8 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
         In map pixels: how far each point is moved along its normal before
         the test, and the depth tolerance, so that a point never shadows
         itself. Occluders nearer than about ``lift`` are missed.
+    threads : int or None
+        Directions cast at once (None: every available core).
 
     Returns
     -------
@@ -110,8 +126,8 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     centre = 0.5 * (lo + hi)
     radius = float(np.linalg.norm(corners - centre, axis=1).max()) or 1.0
-    out = np.ones((pts.shape[0], len(directions)), dtype=bool)
-    for k, w in enumerate(np.asarray(directions, np.float64)):
+
+    def open_towards(w):
         cam, pix = _shadow_camera(w, centre, radius, resolution)
         depth = raycast(cam, tri_pos).depth.ravel()
         # Lifted off the surface along its normal by `lift` map pixels, a point is in front of its own
@@ -120,12 +136,23 @@ def visibility(points, normals, tri_pos, directions, resolution: int = 512, lift
         xy, z = cam.project(pts + (lift * pix) * nrm)
         col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, resolution - 1)
         row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, resolution - 1)
-        out[:, k] = depth[row * resolution + col] >= z - bias * pix
+        return depth[row * resolution + col] >= z - bias * pix
+
+    out = np.ones((pts.shape[0], len(directions)), dtype=bool)
+    for k, col in enumerate(thread_map(open_towards, np.asarray(directions, np.float64), threads)):
+        out[:, k] = col
     return out
 
 
 def occlusion_transfer(
-    points, normals, tri_pos, n_directions: int = 64, resolution: int = 256, bounce: float = 0.0, order: int = 2
+    points,
+    normals,
+    tri_pos,
+    n_directions: int = 64,
+    resolution: int = 256,
+    bounce: float = 0.0,
+    order: int = 2,
+    threads=None,
 ):
     """``T(x) - nu(n)`` at each point: the blocked directions' share of the transfer, ``(P, 9)`` float32.
 
@@ -136,11 +163,11 @@ def occlusion_transfer(
     mean (an albedo times a shading of about the sky's), which gives back
     that fraction of the blocked constant term. ``order`` 3 or 4 gives
     ``(order + 1)^2`` coefficients (:func:`core.solve.sh.sh_basis`); bands
-    above 2 are scaled as band 2 is.
+    above 2 are scaled as band 2 is. ``threads``: as :func:`visibility`.
     """
     dirs = sphere_directions(n_directions)
     nrm = np.asarray(normals, np.float64)
-    vis = visibility(points, nrm, tri_pos, dirs, resolution)
+    vis = visibility(points, nrm, tri_pos, dirs, resolution, threads=threads)
     cos = np.maximum(nrm @ dirs.T, 0.0)  # (P, K)
     blocked = cos * (~vis)
     basis = sh_basis(dirs, np.float64, order)  # (K, (order + 1)^2)
@@ -149,7 +176,23 @@ def occlusion_transfer(
     return occ.astype(np.float32)
 
 
-def pixel_transfer(
+@dataclass
+class OcclusionGrid:
+    """The occlusion ``T - nu`` on a UV grid (:func:`occlusion_grid`), to be sampled at any pixel's UV."""
+
+    occ: np.ndarray  # (grid * grid, K) float32, zero in cells no pixel landed in
+    valid: np.ndarray  # (grid, grid) bool, the cells some pixel landed in
+
+    def transfer(self, uv, normal) -> np.ndarray:
+        """The transfer at points of UV ``(P, 2)`` and unit normal ``(P, 3)``: ``nu(n)`` plus the occlusion."""
+        k = self.occ.shape[1]
+        idx, wts = bilinear_texels(uv, self.valid)
+        return sh_basis(normal, order=round(k**0.5) - 1) * open_factor(k).astype(np.float32) + np.einsum(
+            "kj,kjc->kc", wts, self.occ[idx]
+        )
+
+
+def occlusion_grid(
     tri_pos,
     views_uv,
     views_mask,
@@ -161,29 +204,12 @@ def pixel_transfer(
     resolution: int = 256,
     bounce: float = 0.0,
     order: int = 2,
-):
-    """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
+    threads=None,
+) -> OcclusionGrid:
+    """The occlusion (:func:`occlusion_transfer`) once per cell of a ``grid x grid`` UV grid.
 
-    The occlusion (:func:`occlusion_transfer`) is computed once per cell of a
-    ``grid x grid`` UV grid that some pixel lands in, at the mean position
-    and normal of those pixels, and sampled bilinearly at each pixel's UV.
-
-    Parameters
-    ----------
-    tri_pos : (T, 3, 3) array
-    views_uv, views_mask, views_normal, views_position : lists, one (H, W, ...) array per view
-        The bake's UV, mask, unit normal and world position.
-    views_weight : list of (H, W) arrays, optional
-        Weights of the pixels in the cell means (the bake's view weight).
-    grid, n_directions, resolution : int
-        UV grid size, directions, depth map side.
-    bounce, order : float, int
-        See :func:`occlusion_transfer`.
-
-    Returns
-    -------
-    list of (H, W, (order + 1)^2) float32 arrays
-        Zero outside the masks.
+    Each cell that some pixel lands in is computed at the mean position and
+    normal of those pixels. The arguments are :func:`pixel_transfer`'s.
     """
     n_cells = grid * grid
     acc = np.zeros((n_cells, 7))
@@ -200,15 +226,68 @@ def pixel_transfer(
     p = acc[used, 1:4] / acc[used, :1]
     n = acc[used, 4:7]
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    k = (order + 1) ** 2
-    occ = np.zeros((n_cells, k), np.float32)
-    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order)
-    valid = used.reshape(grid, grid)
-    scale = open_factor(k).astype(np.float32)
-    out = []
-    for uv, mask, nrm in zip(views_uv, views_mask, views_normal):
-        t = np.zeros(mask.shape + (k,), np.float32)
-        idx, wts = bilinear_texels(uv[mask], valid)
-        t[mask] = sh_basis(nrm[mask], order=order) * scale + np.einsum("kj,kjc->kc", wts, occ[idx])
-        out.append(t)
-    return out
+    occ = np.zeros((n_cells, (order + 1) ** 2), np.float32)
+    occ[used] = occlusion_transfer(p, n, tri_pos, n_directions, resolution, bounce, order, threads)
+    return OcclusionGrid(occ=occ, valid=used.reshape(grid, grid))
+
+
+def pixel_transfer(
+    tri_pos,
+    views_uv,
+    views_mask,
+    views_normal,
+    views_position,
+    views_weight=None,
+    grid: int = 128,
+    n_directions: int = 64,
+    resolution: int = 256,
+    bounce: float = 0.0,
+    order: int = 2,
+    threads=None,
+):
+    """Per view, the transfer of every masked pixel: ``nu(n)`` plus the occlusion interpolated in UV.
+
+    The occlusion (:func:`occlusion_transfer`) is computed once per cell of a
+    ``grid x grid`` UV grid that some pixel lands in, at the mean position
+    and normal of those pixels (:func:`occlusion_grid`), and sampled
+    bilinearly at each pixel's UV (:meth:`OcclusionGrid.transfer`).
+
+    Parameters
+    ----------
+    tri_pos : (T, 3, 3) array
+    views_uv, views_mask, views_normal, views_position : lists, one (H, W, ...) array per view
+        The bake's UV, mask, unit normal and world position.
+    views_weight : list of (H, W) arrays, optional
+        Weights of the pixels in the cell means (the bake's view weight).
+    grid, n_directions, resolution : int
+        UV grid size, directions, depth map side.
+    bounce, order, threads : float, int, int or None
+        See :func:`occlusion_transfer`.
+
+    Returns
+    -------
+    list of (H, W, (order + 1)^2) float32 arrays
+        Zero outside the masks.
+    """
+    cells = occlusion_grid(
+        tri_pos,
+        views_uv,
+        views_mask,
+        views_normal,
+        views_position,
+        views_weight,
+        grid,
+        n_directions,
+        resolution,
+        bounce,
+        order,
+        threads,
+    )
+    return [transfer_maps(cells, uv, mask, nrm) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
+
+
+def transfer_maps(cells: OcclusionGrid, uv, mask, normal) -> np.ndarray:
+    """One view's transfer, ``(H, W, K)`` float32, zero outside ``mask``."""
+    t = np.zeros(mask.shape + (cells.occ.shape[1],), np.float32)
+    t[mask] = cells.transfer(uv[mask], normal[mask])
+    return t

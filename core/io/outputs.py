@@ -16,13 +16,24 @@ Both front ends (``python -m core solve`` and the Blender add-on) write through
          "channels": ["R", "G", "B"],
          "normals": "world space, unit length",
          "method": "texture",
+         "world": {"file": "lighting.exr", "sh": [[9 floats] per channel],
+                   "radiance_sh": [[9 floats] per channel]} or null,
          "views": [{"name": "<view>", "file": "views/<view>.exr",
                     "sh": [[9 floats] per channel] or null}]}
 
     The shading of view v, channel c at unit normal n is
     ``sum_k sh[c][k] * basis_k(n)``; ``sh`` is null when no lighting was
     estimated (the add-on's method ``project``). ``channels`` is ``["Y"]``
-    for grey views.
+    for grey views. ``world.sh`` is the mean of the views' ``sh``
+    (:func:`core.io.envmap.world_lighting`) and ``world.radiance_sh`` the
+    environment's radiance ``sum_k radiance_sh[c][k] * basis_k(w)`` coming
+    from the unit world direction w, which lights a Lambertian albedo to that
+    shading (:func:`core.io.envmap.radiance_sh`).
+``lighting.exr``
+    ``world.radiance_sh`` as an equirectangular RGB float32 image in
+    Blender's world convention, clamped at 0
+    (:func:`core.io.envmap.envmap_image`); not written when no lighting was
+    estimated.
 ``report.json``
     What the run did (each front end has its own keys), plus ``"files"``: the
     files the run wrote, relative, ``report.json`` among them.
@@ -66,12 +77,14 @@ import numpy as np
 
 from ..errors import Cancelled, DelightError
 from ..solve.sh import SH_BASIS_NAMES
+from .envmap import envmap_image, radiance_sh, world_lighting
 from .exr import write_exr
 from .jsonio import json_value
 from .names import unique_names
 
 __all__ = [
     "LIGHTING",
+    "ENVMAP",
     "REPORT",
     "NORMALS",
     "Plan",
@@ -79,6 +92,8 @@ __all__ = [
     "view_files",
     "channel_names",
     "lighting_json",
+    "lighting_files",
+    "lighting_outputs",
     "rgba",
     "own_files",
     "plan_outputs",
@@ -89,6 +104,7 @@ __all__ = [
 ]
 
 LIGHTING = "lighting.json"
+ENVMAP = "lighting.exr"
 REPORT = "report.json"
 NORMALS = "world space, unit length"
 
@@ -133,10 +149,31 @@ def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None =
     out = {"sh_basis": list(SH_BASIS_NAMES), "channels": channel_names(n_channels), "normals": NORMALS}
     if method is not None:
         out["method"] = method
+    world = None if sigma is None else world_lighting(sigma)
+    out["world"] = (
+        None if world is None else {"file": ENVMAP, "sh": world.tolist(), "radiance_sh": radiance_sh(world).tolist()}
+    )
     out["views"] = [
         {"name": str(name), "file": f, "sh": None if sigma is None else sigma[i].tolist()}
         for i, (name, f) in enumerate(zip(names, files))
     ]
+    return out
+
+
+def lighting_files(estimated: bool = True) -> list[str]:
+    """The lighting's files: ``lighting.json``, and ``lighting.exr`` when a lighting is estimated."""
+    return [LIGHTING, ENVMAP] if estimated else [LIGHTING]
+
+
+def lighting_outputs(names, files, sigma, n_channels: int = 3, method: str | None = None) -> dict:
+    """The lighting's files by name (:func:`lighting_files`) -> contents, for :func:`write_outputs`.
+
+    ``lighting.json`` (:func:`lighting_json`, same parameters) and, unless
+    ``sigma`` is None, the world lighting as an environment image.
+    """
+    out = {LIGHTING: lighting_json(names, files, sigma, n_channels, method)}
+    if sigma is not None:
+        out[ENVMAP] = envmap_image(radiance_sh(world_lighting(sigma)))
     return out
 
 

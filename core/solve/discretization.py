@@ -37,6 +37,7 @@ domain and the splat).
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -47,6 +48,7 @@ from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels
 from .problem import Problem
 from .sh import sh_basis, sh_products
+from .spmv import PairNormal, matvec_into
 
 __all__ = ["Discretization", "image_domain", "texture_domain"]
 
@@ -64,7 +66,6 @@ class Discretization:
     pixel_offsets: np.ndarray  # (m+1,)
     values: np.ndarray  # (P, C) float32 pixel values I
     nu: np.ndarray  # (P, 9) float32 SH basis of the pixel normals
-    nu_products: np.ndarray  # (P, 45) float32
     obs_unknown: np.ndarray | None  # (O,) intp; None when obs_matrix mixes unknowns
     obs_pixel: np.ndarray  # (O,) intp, sorted
     obs_weight: np.ndarray  # (O,) float32 beta
@@ -74,7 +75,6 @@ class Discretization:
     n_tv: int  # rows [0, n_tv) are TV, the rest correspondences
     base: np.ndarray  # (E,) float32 base row weights
     rho0: np.ndarray  # (n, C) float32 starting reflectance
-    obs_view: np.ndarray | None = None  # (O,) intp view of each observation
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
 
@@ -82,11 +82,29 @@ class Discretization:
     def n_views(self) -> int:
         return len(self.pixel_offsets) - 1
 
+    @property
+    def obs_view(self) -> np.ndarray:
+        """(O,) intp: the view of each observation (made on each use; only the Gauss-Newton step needs it)."""
+        view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
+        return view_of_pixel[self.obs_pixel]
+
+    @property
+    def nu_products(self) -> np.ndarray:
+        """(P, 45) float32 products of the SH basis (:func:`core.solve.sh.sh_products`), made on first use.
+
+        Only the sigma-step needs them; a solve under a fixed lighting never pays for them.
+        """
+        with self._lock:
+            if self._products is None:
+                self._products = sh_products(self.nu)
+        return self._products
+
     def __post_init__(self):
         self._matrices = None
-        if self.obs_view is None:
-            view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
-            self.obs_view = view_of_pixel[self.obs_pixel]
+        self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
+        self._pair = None
+        self._products = None
+        self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 
     @property
     def diagonal_data(self) -> bool:
@@ -95,14 +113,55 @@ class Discretization:
 
     def gather(self, rho: np.ndarray) -> np.ndarray:
         """Reflectance at each observation, ``A @ rho``."""
-        return rho[self.obs_unknown] if self.diagonal_data else self.obs_matrix @ rho
+        return np.take(rho, self.obs_unknown, axis=0) if self.diagonal_data else self.obs_matrix @ rho
 
     def scatter(self, x: np.ndarray, squared: bool = False) -> np.ndarray:
-        """``A^T x``, or with ``squared`` the same with A's entries squared: observations summed onto unknowns."""
+        """``A^T x``, or with ``squared`` the same with A's entries squared: observations summed onto unknowns.
+
+        float32 in, float32 out (a sparse product, which runs outside the GIL); other dtypes are summed in
+        float64.
+        """
         if self.diagonal_data:
+            if x.dtype == np.float32:
+                return _sum(self._sum_matrix("unknown"), x)
             return np.bincount(self.obs_unknown, weights=x, minlength=self.n_unknowns)
         _, AT, A2T = self.observation_matrices()
         return (A2T if squared else AT) @ x
+
+    def pixel_sum(self, x: np.ndarray) -> np.ndarray:
+        """Observations summed onto their pixels, ``(P,)``; float32 as :meth:`scatter`, others in float64."""
+        if x.dtype == np.float32:
+            return _sum(self._sum_matrix("pixel"), x)
+        return np.bincount(self.obs_pixel, weights=x, minlength=self.nu.shape[0])
+
+    def _sum_matrix(self, onto: str):
+        """The 0/1 float32 CSR matrix that sums the observations onto the unknowns or the pixels (kept)."""
+        with self._lock:
+            return self._sum_matrix_locked(onto)
+
+    def _sum_matrix_locked(self, onto: str):
+        if onto not in self._sums:
+            o = self.obs_pixel.size
+            other = next(iter(self._sums.values()), None)
+            ones = np.ones(o, np.float32) if other is None else other.data  # shared by both
+            if onto == "pixel":  # obs_pixel is sorted: each pixel's observations are a run
+                indptr = np.searchsorted(self.obs_pixel, np.arange(self.nu.shape[0] + 1))
+                idx = np.int32 if o < 2**31 else np.int64
+                m = sp.csr_matrix(
+                    (ones, np.arange(o, dtype=idx), indptr.astype(idx)), shape=(self.nu.shape[0], o), copy=False
+                )
+            else:
+                m = sp.csr_matrix((ones, (self.obs_unknown, np.arange(o))), shape=(self.n_unknowns, o))
+                m.data = ones
+            self._sums[onto] = m
+        return self._sums[onto]
+
+    def pair_normal(self):
+        """:class:`core.solve.spmv.PairNormal` of B (kept), or None when B's rows are not all pairs."""
+        with self._lock:
+            if self._pair is None:
+                self._pair = PairNormal.of(self.B, self.BT) or False
+        return self._pair or None
 
     def observation_matrices(self):
         """``A``, ``A^T`` and ``(A^2)^T`` as CSR matrices (A built from ``obs_unknown`` when it is a selection)."""
@@ -123,6 +182,10 @@ class Discretization:
         return s
 
 
+def _sum(A, x):
+    return matvec_into(A, x, np.empty(A.shape[0], x.dtype))
+
+
 def _masked_pixels(problem: Problem):
     offsets = np.zeros(problem.n_views + 1, dtype=np.intp)
     values, nus = [], []
@@ -131,8 +194,7 @@ def _masked_pixels(problem: Problem):
         values.append(problem.images[i][mask])
         nus.append(sh_basis(problem.normals[i][mask]) if problem.transfer is None else problem.transfer[i][mask])
         offsets[i + 1] = offsets[i] + int(mask.sum())
-    nu = np.concatenate(nus)
-    return offsets, np.concatenate(values).astype(np.float32), nu, sh_products(nu)
+    return offsets, np.concatenate(values).astype(np.float32), np.concatenate(nus)
 
 
 def _difference_rows(a, b, coef_b=None):
@@ -158,7 +220,8 @@ def _assemble(groups, n_unknowns):
     B.sum_duplicates()
     B.eliminate_zeros()
     BT = B.T.tocsr()
-    B2T = BT.multiply(BT).tocsr()
+    # Same pattern as BT: share its index arrays.
+    B2T = sp.csr_matrix((BT.data * BT.data, BT.indices, BT.indptr), shape=BT.shape, copy=False)
     return B, BT, B2T
 
 
@@ -184,7 +247,7 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
     mean number of pairs at its two ends, so that every pixel's consistency
     weight sums to about 1 whatever the number of views that see it.
     """
-    offsets, values, nu, prods = _masked_pixels(problem)
+    offsets, values, nu = _masked_pixels(problem)
     n = int(offsets[-1])
     # Map (view, flat pixel) -> unknown.
     lut = []
@@ -213,7 +276,6 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         pixel_offsets=offsets,
         values=values,
         nu=nu,
-        nu_products=prods,
         obs_unknown=obs,
         obs_pixel=obs,
         obs_weight=np.ones(n, dtype=np.float32),
@@ -274,7 +336,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     if data_model not in ("interpolate", "splat"):
         raise ValueError(f"texture domain: data_model must be 'interpolate' or 'splat', got {data_model!r}")
     size = problem.texture.size
-    offsets, values, nu, prods = _masked_pixels(problem)
+    offsets, values, nu = _masked_pixels(problem)
     tex_obs, pix_obs, w_obs = _splats(problem, offsets)
     seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
     texels = np.flatnonzero(seen_count > 0)
@@ -296,7 +358,6 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         pixel_offsets=offsets,
         values=values,
         nu=nu,
-        nu_products=prods,
         obs_unknown=obs_unknown,
         obs_pixel=pix_obs,
         obs_weight=w_obs,

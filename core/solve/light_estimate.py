@@ -383,14 +383,15 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
 
     Returns
     -------
-    (m, C, K) array
-        The lighting, scaled as :func:`core.solve.solver.solve` scales it.
+    core.solve.solver.Result
+        As :func:`core.solve.solver.solve` gives it, with ``info["edges"]``
+        (iterations and last energy of this run).
     """
     import time
 
     from ..progress import check_cancel
     from .discretization import texture_domain
-    from .solver import _Channel, _iterate, _rescaled
+    from .solver import Result, _Channel, _iterate, _outputs, _rescaled
 
     d = texture_domain(problem, data_model=params.data_model)
     C = problem.channels
@@ -403,5 +404,10 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
         if progress is not None:
             progress(it / params.max_iter, f"iteration {it}, energy {e:.6g}")
 
-    _iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
-    return _rescaled(d, channels)[1]
+    history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
+    rho, sigma = _rescaled(d, channels)
+    views, texture, seen = _outputs(problem, d, rho)
+    info = dict(first.info, edges={"iterations": len(history) - 1, "energy": history[-1:]})
+    return Result(
+        sigma=sigma, views=views, energy=first.energy, iterations=first.iterations, texture=texture, seen=seen, info=info
+    )

@@ -47,10 +47,12 @@ __all__ = [
     "shared_lighting_step",
     "split_gains",
     "solve_albedo",
+    "lighting_stage",
     "solve_two_stage",
     "fit_lighting",
     "shading_error",
     "division_start",
+    "shading_floor",
 ]
 
 
@@ -205,11 +207,15 @@ def _shade(d, sigma):
     return out
 
 
+def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
+    """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
+    pos = shade[shade > 0]
+    return floor * (float(np.median(pos)) if pos.size else 1.0)
+
+
 def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
     """The shading raised to at least ``floor`` times its median over the positive values."""
-    pos = shade[shade > 0]
-    low = floor * (float(np.median(pos)) if pos.size else 1.0)
-    return np.maximum(shade, low)
+    return np.maximum(shade, shading_floor(shade, floor))
 
 
 def division_start(d, sigma: np.ndarray) -> np.ndarray:
@@ -252,7 +258,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     core.solve.solver.Result
         With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
     """
-    from .solver import Result, _Channel, _outputs
+    from .solver import Result, _Channel, _outputs, channel_threads
 
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
@@ -289,7 +295,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         channels.append(ch)
     history = [sum(ch.e for ch in channels)]
     it = 0
-    with ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels)))) as pool:
+    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
         while it < params.max_iter:
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
@@ -318,6 +324,51 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
 
+def lighting_stage(problem, params, progress=None, cancel=None):
+    """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
+
+    Solved on a texture of at most ``params.light_size`` (the lighting has 9
+    coefficients per view and channel; it needs no fine texels), started from
+    the photos or from :func:`core.solve.light_estimate.estimate_lighting`
+    (``params.light_start``), and, when ``params.light_edges > 0`` (texture
+    domain), solved again with the albedo edges it found freed
+    (:func:`core.solve.light_estimate.reweighted_lighting`).
+
+    Returns
+    -------
+    (core.solve.problem.Problem, core.solve.solver.Result)
+        The problem it was solved on, and its result (``albedo_lam`` unused).
+    """
+    from .solver import solve
+
+    def part(lo, hi, label):
+        if progress is None:
+            return None
+        return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}{msg}")
+
+    light_problem = problem
+    if (
+        params.domain == "texture"
+        and params.light_size
+        and problem.texture is not None
+        and problem.texture.size > params.light_size
+    ):
+        light_problem = with_texture_size(problem, params.light_size)
+    start = None
+    if params.light_start != "photos":
+        from .light_estimate import estimate_lighting
+
+        start = estimate_lighting(light_problem, "per_view" if params.lighting == "per_view" else "shared")
+    light_params = replace(params, albedo_lam=None)
+    edges = params.light_edges > 0 and params.domain == "texture"
+    first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel, start)
+    if edges:
+        from .light_estimate import reweighted_lighting
+
+        first = reweighted_lighting(light_problem, first, light_params, part(0.6, 1.0, "edges: "), cancel)
+    return light_problem, first
+
+
 def solve_two_stage(problem, params, progress=None, cancel=None):
     """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
 
@@ -341,38 +392,23 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
             return None
         return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}: {msg}")
 
-    light_problem = problem
-    if (
-        params.domain == "texture"
-        and params.light_size
-        and problem.texture is not None
-        and problem.texture.size > params.light_size
-    ):
-        light_problem = with_texture_size(problem, params.light_size)
-    start = None
-    if params.light_start != "photos":
-        from .light_estimate import estimate_lighting
-
-        start = estimate_lighting(light_problem, "per_view" if params.lighting == "per_view" else "shared")
-    if params.light_start == "pairs_only":
-        sigma, stage = start, {"iterations": 0, "energy": [], "solved_size": None}
-    else:
-        light_params = replace(params, albedo_lam=None)
-        first = solve(light_problem, light_params, part(0.0, 0.4, "lighting"), cancel, start)
-        sigma = first.sigma
-        if params.light_edges > 0 and params.domain == "texture":
-            from .light_estimate import reweighted_lighting
-
-            sigma = reweighted_lighting(light_problem, first, light_params, part(0.4, 0.6, "lighting, edges"), cancel)
-        stage = {
-            "iterations": first.iterations,
-            "energy": first.energy[-1:],
-            "solved_size": first.info.get("solved_size"),
-        }
+    light_problem, first = lighting_stage(problem, params, part(0.0, 0.6, "lighting"), cancel)
+    first.views = None  # not needed: free them before the larger stage
+    t1 = time.perf_counter()
     second = solve_albedo(
-        problem, sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
+        problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
     )
-    second.info["lighting_stage"] = dict(stage, lam=params.lam, lighting=params.lighting, start=params.light_start)
+    second.info["lighting_stage"] = {
+        "iterations": first.iterations,
+        "energy": first.energy[-1:],
+        "solved_size": first.info.get("solved_size"),
+        "lam": params.lam,
+        "lighting": params.lighting,
+        "start": params.light_start,
+        "edges": first.info.get("edges"),
+        "pixels": sum(int(m.sum()) for m in light_problem.masks),
+        "seconds": t1 - t0,
+    }
     second.info["albedo_lam"] = params.albedo_lam
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
 from .discretization import Discretization, image_domain, texture_domain
@@ -101,9 +102,11 @@ class SolverParams:
         :func:`core.solve.pyramid.coarsen`), ``coarse_iter`` iterations at most on
         each, and start each level from the one below (rho sampled
         bilinearly from it, sigma as it is).
-    threads : int
-        Channels solved at once, in threads (the sparse products release the
-        GIL); one thread per channel keeps every core busy.
+    threads : int or None
+        Threads the solve uses (the sparse products and NumPy's large array
+        operations release the GIL): the colour channels are solved at once,
+        up to this many in threads. None: every core, one thread per channel.
+        The result does not depend on the number.
     extrapolate : float
         After each iteration, try ``rho + extrapolate * (rho - rho_before)``
         and keep it if it lowers the energy (0 never tries): MM creeps along
@@ -131,11 +134,10 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
-    light_start : {"photos", "pairs", "pairs_only"}
+    light_start : {"photos", "pairs"}
         Two stages: the lighting stage starts from rho = I (the photos), or
         from the lighting :mod:`core.solve.light_estimate` fits to neighbouring
-        pixels' brightness ratios; "pairs_only" uses that fit as the lighting
-        and skips the MM.
+        pixels' brightness ratios.
     light_edges : float
         Two stages, texture domain: when > 0, the lighting stage is run again
         with its TV rows weighted down across the albedo edges it found
@@ -152,7 +154,7 @@ class SolverParams:
     tol: float = 1e-4
     cg_iter: int | None = None
     normalise_correspondences: bool = True
-    threads: int = 3
+    threads: int | None = None
     gauss_newton: bool = False
     data_model: str = "splat"
     precision: str = "float32"
@@ -207,10 +209,12 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        if self.light_start not in ("photos", "pairs", "pairs_only"):
-            raise ValueError(f"solver: light_start must be 'photos', 'pairs' or 'pairs_only', got {self.light_start!r}")
+        if self.light_start not in ("photos", "pairs"):
+            raise ValueError(f"solver: light_start must be 'photos' or 'pairs', got {self.light_start!r}")
         if not np.isfinite(self.light_edges) or self.light_edges < 0:
             raise ValueError(f"solver: light_edges must be finite and >= 0, got {self.light_edges}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
 
@@ -246,6 +250,17 @@ class Result:
     info: dict = field(default_factory=dict)
 
 
+def channel_threads(params: SolverParams, channels: int) -> int:
+    """Threads for the channels' pool: one per channel, or ``params.threads`` if that is fewer.
+
+    With None (every core) each channel gets its own thread even on fewer cores: the system shares them out,
+    where a pool of two threads for three channels would leave one core idle while the last channel runs.
+    """
+    if params.threads is None:
+        return max(1, channels)
+    return max(1, min(resolve_threads(params.threads), channels))
+
+
 def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarray:
     """``sigma_v . nu_p`` for every pixel p of every view v; sigma is (m, 9)."""
     out = np.empty(d.nu.shape[0], dtype=dtype)
@@ -272,7 +287,9 @@ def _weighted_huber(x, w, delta):
 
 def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None):
     """One channel's energy; ``rows``, if given, is a buffer for ``B @ rho`` in rho's dtype."""
-    r = d.gather(rho) * obs_shade - obs_values
+    r = d.gather(rho)  # a new array: the residual is made in it
+    r *= obs_shade
+    r -= obs_values
     data = _weighted_huber(r, d.obs_weight, delta)
     if not d.B.shape[0]:
         return data
@@ -315,6 +332,7 @@ class _Channel:
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
         self._Bx = np.empty(d.B.shape[0], self.ft)
         self._sw = np.empty(d.B.shape[0], self.ft)
+        self._pair_values = None  # the rho-step's B^T diag(sw) B (core.solve.spmv.PairNormal), made on first use
         # Gathered once per change: the observations' values and shading.
         self.obs_values = self.values[d.obs_pixel].astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
@@ -338,27 +356,53 @@ class _Channel:
         return e
 
     def data_weights(self, rho_o):
-        """beta * the majorant's curvature at the current residuals."""
-        r = rho_o * self.obs_shade - self.obs_values
-        return self.d.obs_weight * mm_weight(r, self.delta).astype(self.ft)
+        """beta * the majorant's curvature at the current residuals (one new array)."""
+        w = np.multiply(rho_o, self.obs_shade)
+        w -= self.obs_values
+        mm_weight(w, self.delta, out=w)
+        w *= self.d.obs_weight
+        return w
 
     def rho_step(self):
         d = self.d
         a = self.obs_shade
-        wa = self.data_weights(d.gather(self.rho)) * a
-        waa = wa * a
-        rhs = d.scatter(wa * self.obs_values).astype(self.ft)
-        jacobi = d.scatter(waa, squared=True).astype(self.ft)
+        rho_o = d.gather(self.rho)
+        waa = self.data_weights(rho_o)
+        waa *= a  # w a
+        rhs = d.scatter(np.multiply(waa, self.obs_values, out=rho_o)).astype(self.ft, copy=False)
+        waa *= a  # w a^2
+        del rho_o
+        jacobi = d.scatter(waa, squared=True).astype(self.ft, copy=False)
         if d.diagonal_data:
             diag = jacobi
             data = lambda x: diag * x  # noqa: E731
         else:
             data = lambda x: d.scatter(waa * d.gather(x))  # noqa: E731
+        pair = d.pair_normal() if self.hierarchy is None else None
         if d.B.shape[0]:
             # sw = s * mm_weight(B rho), in the kept buffers.
             Bx = matvec_into(d.B, self.rho, self._Bx)
             sw = np.multiply(self.s_ft, mm_weight(Bx, self.delta, out=Bx), out=self._sw)
             B, BT = d.B, d.BT
+        if pair is not None:
+            # B^T diag(sw) B as one matrix: its off-diagonal part, and the diagonal with the data term's.
+            if self._pair_values is None:
+                self._pair_values = np.empty(pair.edge.size, self.ft)
+                self._Lx, self._Dx = np.empty(d.n_unknowns, self.ft), np.empty(d.n_unknowns, self.ft)
+            values = pair.values(sw, self._pair_values)
+            tv_diag = (d.B2T @ sw).astype(self.ft, copy=False)
+            full_diag = tv_diag + jacobi if d.diagonal_data else tv_diag
+            Lx, Dx = self._Lx, self._Dx
+
+            def matvec(x):
+                out = pair.matvec_into(values, x, Lx)
+                out += np.multiply(full_diag, x, out=Dx)
+                if not d.diagonal_data:
+                    out += data(x)
+                return out
+
+            jacobi = jacobi + tv_diag
+        elif d.B.shape[0]:
 
             def matvec(x):
                 y = matvec_into(B, x, Bx)
@@ -371,7 +415,7 @@ class _Channel:
         if self.hierarchy is not None:  # only built for a diagonal data term with rows in B
             precondition = self.hierarchy.preconditioner(matvec, jacobi, sw, self.ft)
         else:
-            if d.B.shape[0]:
+            if d.B.shape[0] and pair is None:
                 jacobi = jacobi + d.B2T @ sw
             precondition = np.where(jacobi > 0, 1.0 / np.maximum(jacobi, 1e-30), 0.0).astype(self.ft)
         rho = pcg(matvec, rhs, self.rho.copy(), precondition, self.cg_iter)
@@ -384,9 +428,10 @@ class _Channel:
         d = self.d
         rho_o = d.gather(self.rho)
         w = self.data_weights(rho_o)
-        npix = d.nu.shape[0]
-        g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
-        h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * self.values
+        wr = w * rho_o
+        h = d.pixel_sum(wr) * self.values
+        wr *= rho_o
+        g = d.pixel_sum(wr)
         k = d.nu.shape[1]
         Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
         for v in range(d.n_views):
@@ -642,7 +687,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
     stopping test on the relative energy change is skipped before
     ``min_iter``, so that a warm start cannot stop the loop at once.
     """
-    pool = ThreadPoolExecutor(max_workers=max(1, min(params.threads, len(channels))))
+    pool = ThreadPoolExecutor(max_workers=channel_threads(params, len(channels)))
     history, elapsed = [sum(ch.e for ch in channels)], [time.perf_counter() - t0]
     try:
         for it in range(1, params.max_iter + 1):

@@ -17,7 +17,7 @@ try:  # scipy's kernel behind ``A @ x`` for CSR matrices; it adds A x into y.
 except ImportError:  # pragma: no cover - a scipy without it gets the allocating product
     _csr_matvec = None
 
-__all__ = ["matvec_into"]
+__all__ = ["matvec_into", "PairNormal"]
 
 
 def matvec_into(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -40,3 +40,42 @@ def matvec_into(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
     else:
         out[...] = A @ x
     return out
+
+
+class PairNormal:
+    """``B^T diag(s) B`` off its diagonal, for a CSR ``B`` whose every row has two entries, with values that follow s.
+
+    Row i of the product holds, for each row e of B that touches unknown i, the other unknown of e with the value
+    ``c_1(e) c_2(e) s_e`` (the row's two coefficients): the pattern of ``B^T`` with other columns. Two rows of B
+    between the same unknowns give two entries, which the product sums. Building it needs no sort, new weights
+    cost one gather, and a product with it reads half the memory that ``B^T (s * (B x))`` does. The diagonal,
+    ``(B^2)^T s``, is the caller's.
+    """
+
+    def __init__(self, B, BT):
+        self.n = BT.shape[0]
+        self.indptr = BT.indptr
+        self.edge = BT.indices  # the row of B behind each entry
+        self.coef = B.data[0::2] * B.data[1::2]
+        # The other unknown of each entry's row: the sum of the row's two columns minus this one.
+        ends = B.indices[0::2].astype(np.int64) + B.indices[1::2]
+        other = np.take(ends, self.edge)
+        other -= np.repeat(np.arange(self.n, dtype=np.int64), np.diff(BT.indptr))
+        self.indices = other.astype(BT.indices.dtype)
+
+    @classmethod
+    def of(cls, B, BT):
+        """The operator, or None when some row of B has not exactly two entries (or B has no rows)."""
+        if not B.shape[0] or B.format != "csr" or not np.all(np.diff(B.indptr) == 2) or _csr_matvec is None:
+            return None
+        return cls(B, BT)
+
+    def values(self, s: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The entries for row weights ``s`` (B's dtype), into ``out`` (one per entry of ``B^T``)."""
+        return np.take(self.coef * s, self.edge, out=out)
+
+    def matvec_into(self, values: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out[:] = L x`` with the entries ``values`` (x, out and values of one dtype, contiguous)."""
+        out.fill(0)
+        _csr_matvec(self.n, self.n, self.indptr, self.indices, values, x, out)
+        return out

@@ -222,12 +222,13 @@ def test_lighting_json_schema_is_that_of_python_m_core(tmp_path):
         return "number" if isinstance(x, (int, float)) else type(x).__name__
 
     assert schema(addon) == schema(core)
-    assert list(addon) == ["sh_basis", "channels", "normals", "method", "views"]
+    assert list(addon) == ["sh_basis", "channels", "normals", "method", "world", "views"]
     for key in ("sh_basis", "channels", "normals", "method"):
         assert addon[key] == core[key]
-    for light in (core, addon):
+    for light, folder in ((core, tmp_path / "core"), (addon, tmp_path / "addon")):
         assert np.shape([v["sh"] for v in light["views"]]) == (len(light["views"]), 3, 9)
         assert all(v["file"].startswith("views/") and v["file"].endswith(".exr") for v in light["views"])
+        assert light["world"]["file"] == "lighting.exr" and (folder / "lighting.exr").is_file()
 
 
 def test_save_writes_the_material_into_the_blend(tmp_path):

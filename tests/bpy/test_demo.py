@@ -72,7 +72,7 @@ def test_demo_pictures_writes_every_promised_file(tmp_path):
     assert sorted(os.listdir(out / "pictures")) == sorted(names)
     assert len(p.stdout.splitlines()) == 3 and all(n in p.stdout for n in names)
     assert sorted(os.listdir(out)) == sorted(
-        ["Subject_albedo.exr", "lighting.json", "report.json", "views", "pictures"]
+        ["Subject_albedo.exr", "lighting.json", "lighting.exr", "report.json", "views", "pictures"]
     )
 
     # Photo | ours | truth, each PANEL pixels wide at the photos' aspect, under a title row.

@@ -32,6 +32,7 @@ OPERATOR = {
     "mu": "mu",
     "max_iter": "max_iter",
     "working_res": "working_res_mp",
+    "detail": "detail",
     "texture_size": "texture_size",
     "method": "method",
     "out_dir": "out_dir",

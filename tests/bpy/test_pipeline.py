@@ -91,6 +91,7 @@ def test_project_writes_the_promised_files(tmp_path):
     light = json.loads((out / "lighting.json").read_text())
     assert [v["name"] for v in light["views"]] == names and len(light["sh_basis"]) == 9
     assert all(v["sh"] is None for v in light["views"])  # project estimates no lighting
+    assert light["world"] is None  # and writes no lighting.exr (the file list above)
     report = json.loads((out / "report.json").read_text())
     assert report["method"] == "project" and report["object"] == "Target"
     assert set(report["times_s"]) >= {"gather", "bake", "solve", "fuse", "write"}
@@ -288,6 +289,8 @@ def test_texture_method_delights(tmp_path):
     assert rep.iterations >= 1 and len(rep.energy) >= 2
     light = json.loads((tmp_path / "out" / "lighting.json").read_text())
     assert light["channels"] == ["R", "G", "B"] and np.shape([v["sh"] for v in light["views"]]) == (4, 3, 9)
+    assert os.path.join(str(tmp_path / "out"), "lighting.exr") in rep.files
+    assert read_exr(tmp_path / "out" / "lighting.exr")[0].shape == (128, 256, 3)
     # The per-view maps are the texture seen through each view's bake.
     albedo, _ = read_exr(tmp_path / "out" / "Target_albedo.exr")
     v0, _ = read_exr(tmp_path / "out" / "views" / f"{s.cameras[0].name}.exr")

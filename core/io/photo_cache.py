@@ -1,0 +1,114 @@
+"""Full-resolution photos kept on disk while a run needs them, so that memory holds one at a time.
+
+The scene is read once (decoding a photo through Blender's colour management is slow, and only the main thread
+may do it); each photo is downscaled to the working resolution for the solve, and the detail stage
+(:mod:`core.texture.detail`) reads the full-resolution copy again later, from any thread. :class:`PhotoCache`
+keeps those copies as half floats in a hidden folder ``.delight-photos-*`` inside the output folder (on the disk
+the outputs go to, which is checked for room; a system temporary folder may live in memory), and removes the
+folder when closed, when the run fails, or at the latest when the cache is collected.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import shutil
+import tempfile
+import weakref
+
+import numpy as np
+
+from ..errors import DelightError
+from .outputs import check_writable
+
+__all__ = ["PhotoCache", "PREFIX"]
+
+PREFIX = ".delight-photos-"
+# The largest half float: brighter values are clipped to it.
+_HALF_MAX = 65504.0
+# Free space left on the disk beyond the copies.
+_SPARE_BYTES = 256 * 2**20
+
+
+def _load(path, clipped_path):
+    photo = np.load(path).astype(np.float32)
+    return photo, (np.load(clipped_path) if clipped_path else None)
+
+
+def _remove(folder, made):
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+    for d in reversed(made):  # the folders made for the cache, outermost first in `made`
+        try:
+            os.rmdir(d)
+        except OSError:
+            break
+
+
+class PhotoCache:
+    """Photos as half-float ``.npy`` files in a hidden folder of ``parent``, each read back by a loader.
+
+    Parameters
+    ----------
+    parent : str
+        The folder that holds the cache (the output folder). It and the cache folder are made at the first
+        :meth:`put`; :meth:`close` removes the cache folder, and ``parent`` again if the cache made it and it is
+        empty.
+    """
+
+    def __init__(self, parent):
+        self.parent = os.path.abspath(os.fspath(parent))
+        self.folder = None
+        self.count = 0
+        self.bytes = 0
+        self._finalizer = None
+
+    def _open(self):
+        check_writable(self.parent)
+        made, top = [], self.parent
+        while not os.path.lexists(top):
+            made.append(top)
+            top = os.path.dirname(top)
+        try:
+            os.makedirs(self.parent, exist_ok=True)
+            self.folder = tempfile.mkdtemp(prefix=PREFIX, dir=self.parent)
+        except OSError as exc:
+            _remove(self.folder, made[::-1])
+            raise DelightError(f"cannot keep the full-resolution photos in {self.parent}: {exc}") from None
+        self._finalizer = weakref.finalize(self, _remove, self.folder, made[::-1])
+
+    def put(self, photo, clipped=None):
+        """Keep ``photo`` ``(H, W, C)`` (and its ``(H, W)`` clipped pixels); return ``load() -> (photo, clipped)``.
+
+        Raises
+        ------
+        DelightError
+            Too little room on the disk for the copy, or it could not be written.
+        """
+        if self.folder is None:
+            self._open()
+        need = photo.size * 2 + (clipped.size if clipped is not None else 0)
+        free = shutil.disk_usage(self.folder).free
+        if need + _SPARE_BYTES > free:
+            raise DelightError(
+                f"too little room in {self.parent} for the full-resolution photos' temporary copies "
+                f"({self.bytes / 1e6:.0f} MB kept, {free / 1e6:.0f} MB free, {need / 1e6:.0f} MB more needed): "
+                "free some space, choose another output folder, or turn off Full-resolution detail"
+            )
+        path = os.path.join(self.folder, f"{self.count}.npy")
+        clipped_path = None
+        try:
+            np.save(path, np.clip(photo, -_HALF_MAX, _HALF_MAX).astype(np.float16))
+            if clipped is not None:
+                clipped_path = os.path.join(self.folder, f"{self.count}_clipped.npy")
+                np.save(clipped_path, np.asarray(clipped, bool))
+        except OSError as exc:
+            raise DelightError(f"cannot keep a full-resolution photo in {self.folder}: {exc}") from None
+        self.count += 1
+        self.bytes += need
+        return functools.partial(_load, path, clipped_path)
+
+    def close(self):
+        """Remove the copies (and the folders the cache made). The loaders fail after this."""
+        if self._finalizer is not None:
+            self._finalizer()

@@ -1,0 +1,53 @@
+"""How many threads a run uses, and the one way the core runs independent work items on them.
+
+NumPy's large array operations and SciPy's sparse products release the GIL, so plain threads run them on
+several cores at once without copying the arrays into other processes.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+__all__ = ["available_cores", "resolve_threads", "thread_map"]
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system has one), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this system (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+def resolve_threads(threads: int | None) -> int:
+    """``threads``, or :func:`available_cores` for None; at least 1."""
+    return available_cores() if threads is None else max(1, int(threads))
+
+
+def thread_map(fn, items, threads: int | None = None, done=None) -> list:
+    """``[fn(x) for x in items]``, on up to ``threads`` threads (None: every available core), in order.
+
+    ``done(i)``, if given, is called in the calling thread once item i is done, in order (for progress and
+    cancelling: an exception it raises drops the items not yet started and is raised). With one thread (or
+    one item) everything runs in the calling thread, with no pool.
+    """
+    items = list(items)
+    n = min(resolve_threads(threads), len(items))
+    out = []
+    if n <= 1:
+        for i, x in enumerate(items):
+            out.append(fn(x))
+            if done is not None:
+                done(i)
+        return out
+    pool = ThreadPoolExecutor(max_workers=n)
+    try:
+        futures = [pool.submit(fn, x) for x in items]
+        for i, f in enumerate(futures):
+            out.append(f.result())
+            if done is not None:
+                done(i)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return out

@@ -1,0 +1,288 @@
+"""The albedo at the photos' full resolution, one photo at a time (the "detail" stage).
+
+The solve runs on photos downscaled to the working resolution. That is plenty for the lighting, which is smooth
+by nature, but the albedo then holds no finer detail than those copies. Under the solved lighting, a pixel's
+albedo is its value divided by its shading (what :func:`core.solve.lighting.division_start` does for one
+observation), and that needs no solve: so this stage takes each photo at its own resolution in turn, bakes that
+view in bands of rows (:func:`core.geometry.bake.bake_rows`), divides every pixel by its shading
+``sigma_v . T`` (T the transfer at the pixel, :class:`core.geometry.transfer.OcclusionGrid`; the shading floored
+as the solve floors it) and adds the quotient into the texel that holds its UV (as
+:func:`core.texture.fuse.fuse_views` does), each pixel weighted by
+
+* its view weight (the cosine to the camera), as the fusion weighs views,
+* its squared shading, so that the mean is the least-squares albedo of the texel's pixels (as
+  :func:`core.solve.lighting.division_start` takes it) and dark pixels, whose quotient is noisiest, count least,
+  and
+* how well its view agreed with the other views at the working resolution (:func:`agreement`): Tukey's
+  biweight of the log ratio between the view's own quotient and the median of all views' quotients, so that a
+  highlight, a misregistered edge or a shadow the lighting does not explain, seen in one photo, drops out.
+
+Memory holds the texture's accumulators and one photo (its bake in bands). A texel's value is the weighted mean
+of its pixels, with a small weight (:data:`PRIOR_WEIGHT`) of the working-resolution albedo; a texel no pixel
+reached takes its neighbours' pixels, or else the working-resolution albedo.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from ..errors import DelightError
+from ..geometry.bake import bake_rows, mesh_normals
+from ..geometry.bilinear import interpolate
+from ..geometry.texels import bilinear_texels, texel_index
+from ..progress import check_cancel
+from ..solve.lighting import shading_floor
+from ..solve.sh import sh_basis
+from .fuse import fuse_views
+
+__all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
+
+#: Weight of the working-resolution albedo in every texel's mean: a texel reached by full-resolution pixels of
+#: total weight w takes w / (w + PRIOR_WEIGHT) of their mean (a pixel seen head-on weighs 1).
+PRIOR_WEIGHT = 0.05
+# The agreement weight is Tukey's biweight of the log ratio, zero beyond this many robust standard deviations
+# (Tukey's constant, 95 % efficient on normal data) and never for less than the floor (a 10 % disagreement);
+# the least weight keeps a texel whose every view disagrees (strong detail) a weighted mean.
+_SCALE_SIGMAS = 4.685
+_SCALE_MIN = 0.1
+_LEAST_AGREEMENT = 1e-3
+# Pixels per band of rows of the full-resolution bake.
+_BAND_PIXELS = 1_000_000
+
+
+def shading(normal, uv, sigma_view, cells=None, floor=None) -> np.ndarray:
+    """The shading ``sigma_v . T`` of pixels, ``(P, C)`` float32, floored to ``floor`` (per channel) if given.
+
+    Parameters
+    ----------
+    normal, uv : (P, 3), (P, 2) arrays
+        The pixels' unit normals and UVs.
+    sigma_view : (C, K) array
+        The view's lighting.
+    cells : core.geometry.transfer.OcclusionGrid, optional
+        The occlusion; without it T is ``nu(n)``, the paper's model.
+    floor : (C,) array, optional
+    """
+    t = cells.transfer(uv, normal) if cells is not None else sh_basis(normal)
+    s = t @ np.asarray(sigma_view, np.float32).T
+    return s if floor is None else np.maximum(s, np.asarray(floor, np.float32))
+
+
+def shading_floors(sigma, normals, uvs, masks, cells=None) -> np.ndarray:
+    """Per channel, the least shading kept (:func:`core.solve.lighting.shading_floor` over every view's pixels)."""
+    shades = np.concatenate(
+        [shading(n[m], uv[m], sigma[v], cells) for v, (n, uv, m) in enumerate(zip(normals, uvs, masks))]
+    )
+    return np.array([shading_floor(shades[:, c].astype(np.float64)) for c in range(shades.shape[1])], np.float32)
+
+
+def _log_ratio(q, b):
+    """Per pixel, the RMS over the channels of ``log(q / b)``, both kept off zero."""
+    eps = 1e-3 + 0.02 * float(np.median(b)) if b.size else 1e-3
+    e = np.log(np.maximum(q, 0) + eps) - np.log(np.maximum(b, 0) + eps)
+    return np.sqrt(np.mean(e * e, axis=1))
+
+
+def _reference_size(masks, uvs, n) -> int:
+    """A texture size for :func:`agreement`'s reference: halved from ``n`` (at most 2048) until the median view
+    has about two pixels per texel it reaches, so that each texel's median draws on whole pixels."""
+    size = min(int(n), 2048)
+    while size > 16:
+        ratios = []
+        for m, uv in zip(masks, uvs):
+            t = texel_index(uv[m], size)
+            hit = np.unique(t[t >= 0]).size
+            if hit:
+                ratios.append(t.size / hit)
+        if not ratios or np.median(ratios) >= 2.0:
+            break
+        size //= 2
+    return size
+
+
+def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None) -> list:
+    """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
+
+    Each pixel's own albedo (its value over its floored shading) is compared with the weighted median of all
+    views' own albedos in its texel of a coarse reference texture (:func:`core.texture.fuse.fuse_views`, whose
+    median a highlight or a misregistered edge in one view does not move); the log ratio e (RMS over the
+    channels) gives the Cauchy weight ``1 / (1 + (e / s)^2)``, with s a few robust standard deviations of e over
+    all pixels of all views.
+
+    Parameters
+    ----------
+    photos, masks, uvs, normals, weights : lists of (H, W, ...) arrays
+        The working-resolution photos and their bakes (``weights`` the view weights).
+    sigma : (m, C, K) array
+    floor : (C,) array
+    cells : OcclusionGrid, optional
+
+    Returns
+    -------
+    list of (H, W) float32 arrays
+        0 outside the masks.
+    """
+    own = []
+    for v, (photo, m, uv, nrm) in enumerate(zip(photos, masks, uvs, normals)):
+        q = np.zeros(photo.shape, np.float32)
+        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor)
+        own.append(q)
+    size = _reference_size(masks, uvs, 2048)
+    ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
+    flat = ref.reshape(size * size, -1)
+    everywhere = np.ones((size, size), bool)
+    errors = []
+    for q, m, uv in zip(own, masks, uvs):
+        idx, w = bilinear_texels(uv[m], everywhere)
+        errors.append(_log_ratio(q[m], interpolate(flat, idx, w)))
+    pooled = np.concatenate(errors) if errors else np.zeros(0)
+    scale = max(_SCALE_SIGMAS * 1.4826 * float(np.median(pooled)) if pooled.size else 0.0, _SCALE_MIN)
+    out = []
+    for m, e in zip(masks, errors):
+        a = np.zeros(m.shape, np.float32)
+        a[m] = np.maximum((1.0 - np.minimum(e / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
+        out.append(a)
+    return out
+
+
+def _working_pixel(n_full, n_work):
+    """For each full-resolution row (or column), the working-resolution one whose area holds its centre."""
+    return np.minimum(((np.arange(n_full) + 0.5) * (n_work / n_full)).astype(np.intp), n_work - 1)
+
+
+def _splat(sums, texel, w, q):
+    """Add pixels to their texels (flat indices): weights ``w`` (P,) and quotients ``q`` (P, C).
+
+    ``sums`` holds per texel the sum of w, then of w q per channel.
+    """
+    np.add.at(sums[0], texel, w)
+    for k in range(q.shape[1]):
+        np.add.at(sums[1 + k], texel, w * q[:, k])
+
+
+def _mean(sums, base, prior):
+    """Each texel's weighted mean quotient, with weight ``prior`` of ``base``.
+
+    A texel no pixel reached takes the mean of its 3 x 3 neighbourhood's pixels where there are some (photos a
+    little coarser than the texture), else ``base``. Returns the texture and the texels some pixel reached.
+    """
+    n, c = base.shape[0], base.shape[2]
+    wsum = sums[0].reshape(n, n)
+    near = ndi.uniform_filter(wsum, size=3, mode="constant")
+    direct = wsum > 0
+    out = np.empty((n, n, c), np.float32)
+    for k in range(c):
+        a = sums[1 + k].reshape(n, n)
+        b = base[..., k]
+        own = (a + prior * b) / (wsum + prior)
+        around = (ndi.uniform_filter(a, size=3, mode="constant") + prior * b) / (near + prior)
+        out[..., k] = np.where(direct, own, around)
+    return out, direct
+
+
+def detail_albedo(
+    mesh,
+    cameras,
+    load,
+    sigma,
+    base,
+    inside,
+    floor,
+    weights=None,
+    cells=None,
+    use_clipped=False,
+    progress=None,
+    cancel=None,
+    band_pixels: int = _BAND_PIXELS,
+):
+    """The albedo texture from the photos at their full resolution, one photo at a time.
+
+    Parameters
+    ----------
+    mesh : core.scene.MeshArrays
+    cameras : list of core.geometry.camera.Camera
+        Each view's camera on its full-resolution pixel grid.
+    load : callable(i) -> (photo, clipped)
+        View i's photo, ``(H, W, C)`` float32 linear (row 0 at the top), and its clipped pixels ``(H, W)`` bool
+        or None. Called once per view, in order; the photo is let go before the next call.
+    sigma : (m, C, K) array
+        The solved lighting of each view (in the scale of ``base``).
+    base : (N, N, C) array
+        The working-resolution albedo, filled: the fallback and the prior of every texel.
+    inside : (N, N) bool array
+        The texels inside the UV islands; pixels outside them are left out.
+    floor : (C,) array
+        The least shading (:func:`shading_floors`).
+    weights : list of (H', W') arrays, optional
+        Per view, a weight per working-resolution pixel (:func:`agreement`); a full-resolution pixel takes the
+        weight of the working pixel whose area holds its centre. Default 1.
+    cells : OcclusionGrid, optional
+        The occlusion, as in the solve.
+    use_clipped : bool
+        Leave out the pixels that ``load`` reports clipped.
+    progress : callable(fraction, message), optional
+    cancel : callable() -> bool, optional
+    band_pixels : int
+        Pixels per band of the bake.
+
+    Returns
+    -------
+    albedo : (N, N, C) float32
+    reached : (N, N) bool
+        Texels that some full-resolution pixel landed in.
+
+    Raises
+    ------
+    DelightError
+        A photo's size differs from its camera's.
+    Cancelled
+    """
+    n, c = base.shape[0], base.shape[2]
+    sums = np.zeros((1 + c, n * n), np.float32)
+    corner, face = mesh_normals(mesh)
+    floor = np.maximum(np.asarray(floor, np.float32), 1e-6)
+    inside_flat = np.asarray(inside, bool).ravel()
+    m = len(cameras)
+    done = 0.0
+    total = float(sum(cam.width * cam.height for cam in cameras)) or 1.0
+    t0 = time.perf_counter()
+    for v, cam in enumerate(cameras):
+        check_cancel(cancel)
+        if progress is not None:
+            progress(done / total, f"photo {v + 1}/{m}")
+        photo, clipped = load(v)
+        if photo.shape[:2] != (cam.height, cam.width):
+            raise DelightError(
+                f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
+            )
+        if weights is not None:
+            rows_lo = _working_pixel(cam.height, weights[v].shape[0])
+            cols_lo = _working_pixel(cam.width, weights[v].shape[1])
+        for r0, b in bake_rows(cam, mesh, band_pixels, corner, face):
+            check_cancel(cancel)
+            h = b.mask.shape[0]
+            mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
+            rr, cc = np.nonzero(mask)
+            if rr.size:
+                uv = b.uv[rr, cc]
+                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor)
+                q = photo[r0 + rr, cc] / a
+                # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
+                # (division_start's): dark pixels, whose quotient carries the most noise, count least.
+                w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
+                if weights is not None:
+                    w = w * weights[v][rows_lo[r0 + rr], cols_lo[cc]]
+                texel = texel_index(uv, n)
+                keep = texel >= 0
+                keep[keep] = inside_flat[texel[keep]]
+                _splat(sums, texel[keep], w[keep], q[keep])
+            done += h * cam.width
+            if progress is not None:
+                progress(done / total, f"photo {v + 1}/{m}")
+        del photo, clipped  # let it go before the next one is read
+    if progress is not None:
+        progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
+    return _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))

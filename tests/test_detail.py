@@ -1,0 +1,218 @@
+"""The detail stage (core.texture.detail): the albedo again from the photos at full resolution, one at a time."""
+
+import weakref
+
+import numpy as np
+import pytest
+
+from core.evaluate.metrics import scaled_rmse
+from core.geometry.bake import bake_rows, bake_view
+from core.geometry.bilinear import interpolate
+from core.geometry.camera import Camera
+from core.geometry.texels import bilinear_texels
+from core.io.photos import downscale
+from core.pipeline import Options, compute
+from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
+from core.solve.sh import sh_basis
+from core.texture.detail import detail_albedo
+
+N = 256  # texture
+FULL = (480, 360)  # photo size
+WORKING_MP = 0.02  # about 163 x 122
+VIEWS = 10
+
+
+def band_mesh(n_lon=64, n_lat=24, lat_max_deg=70.0):
+    """A unit sphere without its polar caps, UV-mapped by longitude and latitude onto the whole square."""
+    lat = np.radians(np.linspace(-lat_max_deg, lat_max_deg, n_lat + 1))
+    lon = np.linspace(-np.pi, np.pi, n_lon + 1)
+    tri_pos, tri_uv, tri_vert = [], [], []
+    for i in range(n_lat):
+        for j in range(n_lon):
+            corners = [(i, j), (i, j + 1), (i + 1, j + 1), (i + 1, j)]
+            pos = [
+                (np.cos(lat[a]) * np.cos(lon[b]), np.cos(lat[a]) * np.sin(lon[b]), np.sin(lat[a])) for a, b in corners
+            ]
+            uv = [(b / n_lon, a / n_lat) for a, b in corners]
+            vid = [a * n_lon + b % n_lon for a, b in corners]
+            for t in ((0, 1, 2), (0, 2, 3)):
+                tri_pos.append([pos[k] for k in t])
+                tri_uv.append([uv[k] for k in t])
+                tri_vert.append([vid[k] for k in t])
+    return MeshArrays(
+        tri_pos=np.array(tri_pos, np.float64),
+        tri_uv=np.array(tri_uv, np.float32),
+        tri_vert=np.array(tri_vert, np.intp),
+        uv_map="UVMap",
+    )
+
+
+def look_at(eye, width, height, fill=0.8):
+    eye = np.asarray(eye, np.float64)
+    f = -eye / np.linalg.norm(eye)
+    r = np.cross(f, (0, 0, 1.0))
+    r /= np.linalg.norm(r)
+    R = np.stack([r, np.cross(f, r), f])
+    focal = fill * height / 2 / np.tan(np.arcsin(1 / np.linalg.norm(eye)))
+    K = [[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1]]
+    return Camera(K, R, -R @ eye, width, height)
+
+
+def resized(cam, width, height):
+    """The camera on a resampled pixel grid (pixel-edge coordinates scale with the image)."""
+    sx, sy = width / cam.width, height / cam.height
+    K = cam.K.copy()
+    K[0, 0] *= sx
+    K[1, 1] *= sy
+    K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+    K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+    return Camera(K, cam.R, cam.t, width, height)
+
+
+def lighting(channels=3):
+    s = np.zeros(9)
+    s[3], s[0:3], s[4:] = 0.7, 0.55 * np.array([0.6, -0.5, 0.62]), [0.05, -0.04, 0.03, 0.06, -0.02]
+    return s[None, :] * np.array([1.0, 0.95, 0.85])[:channels, None]
+
+
+def fine_albedo(seed=0):
+    """Random colours on blocks of 2 x 2 texels: detail the working resolution cannot hold."""
+    rng = np.random.default_rng(seed)
+    blocks = rng.uniform(0.15, 0.9, size=(N // 2, N // 2, 3))
+    return np.repeat(np.repeat(blocks, 2, axis=0), 2, axis=1).astype(np.float32)
+
+
+def render(cam, mesh, albedo, sigma):
+    """The photo a renderer makes: the texture's bilinear lookup times the SH shading, 0 off the mesh."""
+    b = bake_view(cam, mesh)
+    idx, w = bilinear_texels(b.uv[b.mask], np.ones((N, N), bool))
+    photo = np.zeros(b.mask.shape + (3,), np.float32)
+    photo[b.mask] = interpolate(albedo.reshape(N * N, 3), idx, w) * (sh_basis(b.normal[b.mask]) @ sigma.T)
+    return photo
+
+
+@pytest.fixture(scope="module")
+def scene():
+    mesh = band_mesh()
+    albedo = fine_albedo()
+    sigma = lighting()
+    cams = []
+    for k in range(VIEWS):
+        az, el = 2 * np.pi * k / VIEWS + 0.3, 0.3 if k % 2 else -0.25
+        cams.append(look_at(3.0 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)]), *FULL))
+    photos = [render(c, mesh, albedo, sigma) for c in cams]
+    return mesh, albedo, sigma, cams, photos
+
+
+class Loads:
+    """Full-resolution photos handed out as fresh copies; records whether an earlier one was still alive."""
+
+    def __init__(self, photos):
+        self.photos, self.alive, self.calls, self.max_alive = photos, [], 0, 0
+
+    def __call__(self, i):
+        self.alive = [r for r in self.alive if r() is not None]
+        self.max_alive = max(self.max_alive, len(self.alive))
+        self.calls += 1
+        photo = self.photos[i].copy()
+        self.alive.append(weakref.ref(photo))
+        return photo, None
+
+
+def inputs_of(scene, loads):
+    mesh, _, _, cams, photos = scene
+    views = []
+    for i, (cam, photo) in enumerate(zip(cams, photos)):
+        small, (sx, sy) = downscale(photo, WORKING_MP)
+        full = FullPhoto(camera=cam, load=lambda i=i: loads(i))
+        cam_small = resized(cam, small.shape[1], small.shape[0])
+        views.append(ViewInput(name=f"cam{i}", camera=cam_small, photo=small, source="test", full=full))
+    return SceneInputs(object_name="band", mesh=mesh, views=views)
+
+
+def test_bands_of_rows_bake_as_the_whole_view(scene):
+    mesh, _, _, cams, _ = scene
+    whole = bake_view(cams[0], mesh)
+    bands = list(bake_rows(cams[0], mesh, max_pixels=50 * FULL[0]))
+    assert len(bands) == -(-FULL[1] // 50)
+    for r0, b in bands:
+        rows = slice(r0, r0 + b.mask.shape[0])
+        np.testing.assert_array_equal(b.mask, whole.mask[rows])
+        np.testing.assert_allclose(b.uv, whole.uv[rows], atol=1e-6)
+        np.testing.assert_allclose(b.normal, whole.normal[rows], atol=1e-6)
+        np.testing.assert_allclose(b.view_weight, whole.view_weight[rows], atol=1e-6)
+    assert sum(b.mask.shape[0] for _, b in bands) == FULL[1]
+
+
+def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
+    albedo = scene[1]
+    runs = {}
+    for detail in (False, True):
+        loads = Loads(scene[4])
+        opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
+        times = {}
+        out = compute(
+            opt, inputs_of(scene, loads), [bake_view(v.camera, scene[0]) for v in inputs_of(scene, loads).views], times
+        )
+        runs[detail] = (out, loads, times)
+    (coarse, _, t0), (fine, loads, t1) = runs[False], runs[True]
+    seen = coarse.seen & fine.seen
+    assert seen.sum() > 0.4 * N * N
+    e_coarse = scaled_rmse(coarse.albedo, albedo, seen)
+    e_fine = scaled_rmse(fine.albedo, albedo, seen)
+    # Measured: 0.200 (working resolution) against 0.077 (detail) in each channel.
+    assert np.all(e_fine < 0.5 * e_coarse), (e_fine, e_coarse)
+    # Streamed: each view's photo read once, never two alive at a time; the stage is timed.
+    assert loads.calls == len(scene[3]) and loads.max_alive == 0
+    assert "detail" in t1 and "detail" not in t0
+    assert fine.info["detail"] and not coarse.info["detail"]
+
+
+def test_detail_takes_one_photo_at_a_time_and_drops_a_highlight(scene):
+    mesh, albedo, sigma, cams, photos = scene
+    # One photo carries a strong highlight: the agreement weight must keep it out of the texture.
+    lit = [p.copy() for p in photos]
+    h, w = FULL[1], FULL[0]
+    yy, xx = np.mgrid[0:h, 0:w]
+    spot = np.exp(-((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / (2 * 25.0**2))[..., None]
+    lit[0] = lit[0] + 3.0 * spot * (lit[0] > 0)
+    loads = Loads(lit)
+    opt = Options(texture_size=N, working_res_mp=WORKING_MP)
+    inp = inputs_of((mesh, albedo, sigma, cams, lit), loads)
+    out = compute(opt, inp, [bake_view(v.camera, mesh) for v in inp.views])
+    assert loads.max_alive == 0
+    seen = out.seen
+    err = np.abs(out.albedo - albedo * (np.sum(out.albedo[seen] * albedo[seen]) / np.sum(albedo[seen] ** 2)))
+    # Where view 0 saw the highlight, the texture stays near the truth.
+    b = bake_view(cams[0], mesh)
+    hot = b.mask & (spot[..., 0] > 0.5)
+    idx, wts = bilinear_texels(b.uv[hot], np.ones((N, N), bool))
+    texels = np.unique(idx[wts > 0.25])
+    assert texels.size > 100
+    # Measured: 0.048 there (0.040 over all texels); 1.13 when the highlight's view is not weighed down.
+    assert np.median(err.reshape(-1, 3)[texels]) < 0.1, np.median(err.reshape(-1, 3)[texels])
+
+
+def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
+    mesh, albedo, sigma, cams, photos = scene
+    with pytest.raises(Exception, match="480x360"):
+        detail_albedo(
+            mesh,
+            cams[:1],
+            lambda i: (photos[0][:-1], None),
+            sigma[None].repeat(1, 0),
+            albedo,
+            np.ones((N, N), bool),
+            np.full(3, 0.1),
+        )
+
+
+def test_the_detail_schedule_covers_the_bar_in_order_and_reads_the_scene_as_the_other():
+    from core.progress import DETAIL_STAGES, STAGES
+
+    spans = list(DETAIL_STAGES.values())
+    assert spans[0][0] == 0.0 and spans[-1][1] == 1.0
+    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
+    assert list(DETAIL_STAGES) == ["gather", "bake", "solve", "fuse", "detail", "write"]
+    # The photos are read before the run knows which schedule it has; the files are written in the same share.
+    assert DETAIL_STAGES["gather"] == STAGES["gather"] and DETAIL_STAGES["write"] == STAGES["write"]

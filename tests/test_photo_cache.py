@@ -1,0 +1,58 @@
+"""The full-resolution photos' temporary copies (core.io.photo_cache)."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from core.errors import DelightError
+from core.io import photo_cache
+from core.io.photo_cache import PREFIX, PhotoCache
+
+
+def test_copies_read_back_as_half_floats_and_go_with_the_folders_they_made(tmp_path):
+    out = tmp_path / "new" / "out"  # neither exists yet
+    cache = PhotoCache(out)
+    photo = np.random.default_rng(0).uniform(0, 4, size=(30, 40, 3)).astype(np.float32)
+    photo[0, 0] = 1e6  # beyond half floats: clipped, not infinite
+    clipped = photo[..., 0] > 3.5
+    load = cache.put(photo, clipped)
+    load_plain = cache.put(photo[:10])
+    (folder,) = [f for f in os.listdir(out) if f.startswith(PREFIX)]
+    back, back_clipped = load()
+    assert back.dtype == np.float32 and back.shape == photo.shape
+    np.testing.assert_allclose(back[1:], photo[1:], rtol=1e-3)
+    assert back[0, 0, 0] == 65504.0
+    np.testing.assert_array_equal(back_clipped, clipped)
+    assert load_plain()[1] is None
+    assert load() is not None  # read anew on each call
+    cache.close()
+    assert not (tmp_path / "new").exists()  # the cache made both folders and removes them
+    cache.close()  # twice is fine
+    with pytest.raises(OSError):
+        load()
+
+
+def test_an_existing_output_folder_and_its_files_stay(tmp_path):
+    (tmp_path / "keep.txt").write_text("mine")
+    cache = PhotoCache(tmp_path)
+    cache.put(np.zeros((4, 4, 3), np.float32))
+    del cache  # collected: the copies go all the same
+    assert sorted(os.listdir(tmp_path)) == ["keep.txt"]
+
+
+def test_too_little_room_is_one_clear_error(tmp_path, monkeypatch):
+    cache = PhotoCache(tmp_path)
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(photo_cache.shutil, "disk_usage", lambda _: usage._replace(free=1000))
+    with pytest.raises(DelightError, match="too little room .* turn off Full-resolution detail"):
+        cache.put(np.zeros((100, 100, 3), np.float32))
+    cache.close()
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_output_folder_that_is_a_file_is_refused_before_anything_is_written(tmp_path):
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(DelightError, match="is a file"):
+        PhotoCache(tmp_path / "out" / "deeper").put(np.zeros((2, 2, 3), np.float32))
