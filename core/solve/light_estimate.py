@@ -409,5 +409,11 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     views, texture, seen = _outputs(problem, d, rho)
     info = dict(first.info, edges={"iterations": len(history) - 1, "energy": history[-1:]})
     return Result(
-        sigma=sigma, views=views, energy=first.energy, iterations=first.iterations, texture=texture, seen=seen, info=info
+        sigma=sigma,
+        views=views,
+        energy=first.energy,
+        iterations=first.iterations,
+        texture=texture,
+        seen=seen,
+        info=info,
     )

@@ -383,7 +383,6 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
     core.solve.solver.Result
         Stage 2's, with stage 1's summary in ``info["lighting_stage"]``.
     """
-    from .solver import solve
 
     t0 = time.perf_counter()
 
