@@ -329,10 +329,9 @@ def lighting_stage(problem, params, progress=None, cancel=None):
 
     Solved on a texture of at most ``params.light_size`` (the lighting has 9
     coefficients per view and channel; it needs no fine texels), started from
-    the photos or from :func:`core.solve.light_estimate.estimate_lighting`
-    (``params.light_start``), and, when ``params.light_edges > 0`` (texture
-    domain), solved again with the albedo edges it found freed
-    (:func:`core.solve.light_estimate.reweighted_lighting`).
+    rho = I, and, when ``params.light_edges > 0`` (texture domain), solved
+    again with the albedo edges it found freed
+    (:func:`core.solve.edges.reweighted_lighting`).
 
     Returns
     -------
@@ -354,16 +353,11 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         and problem.texture.size > params.light_size
     ):
         light_problem = with_texture_size(problem, params.light_size)
-    start = None
-    if params.light_start != "photos":
-        from .light_estimate import estimate_lighting
-
-        start = estimate_lighting(light_problem, "per_view" if params.lighting == "per_view" else "shared")
     light_params = replace(params, albedo_lam=None)
     edges = params.light_edges > 0 and params.domain == "texture"
-    first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel, start)
+    first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel)
     if edges:
-        from .light_estimate import reweighted_lighting
+        from .edges import reweighted_lighting
 
         first = reweighted_lighting(light_problem, first, light_params, part(0.6, 1.0, "edges: "), cancel)
     return light_problem, first
@@ -403,7 +397,6 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         "solved_size": first.info.get("solved_size"),
         "lam": params.lam,
         "lighting": params.lighting,
-        "start": params.light_start,
         "edges": first.info.get("edges"),
         "pixels": sum(int(m.sum()) for m in light_problem.masks),
         "seconds": t1 - t0,

@@ -134,15 +134,11 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
-    light_start : {"photos", "pairs"}
-        Two stages: the lighting stage starts from rho = I (the photos), or
-        from the lighting :mod:`core.solve.light_estimate` fits to neighbouring
-        pixels' brightness ratios.
     light_edges : float
         Two stages, texture domain: when > 0, the lighting stage is run again
         with its TV rows weighted down across the albedo edges it found
-        (:func:`core.solve.light_estimate.reweighted_lighting`; this is the
-        relative edge scale); 0 skips it.
+        (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
+        relative to the albedo's median); 0 skips it.
     """
 
     domain: str = "texture"
@@ -167,7 +163,6 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
-    light_start: str = "photos"
     light_edges: float = 0.0
 
     def resolved(self) -> SolverParams:
@@ -209,8 +204,6 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        if self.light_start not in ("photos", "pairs"):
-            raise ValueError(f"solver: light_start must be 'photos' or 'pairs', got {self.light_start!r}")
         if not np.isfinite(self.light_edges) or self.light_edges < 0:
             raise ValueError(f"solver: light_edges must be finite and >= 0, got {self.light_edges}")
         if self.threads is not None and self.threads < 1:
@@ -489,7 +482,7 @@ class _Channel:
         return self.e
 
 
-def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, sigma0=None) -> Result:
+def solve(problem, params: SolverParams | None = None, progress=None, cancel=None) -> Result:
     """Estimate reflectance and lighting with alternating MM.
 
     The levels of :func:`_ladder` are solved coarse to fine, each started
@@ -502,9 +495,6 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
         Polled between steps; when it returns True, :class:`core.errors.Cancelled` is raised.
-    sigma0 : (m, C, K) array, optional
-        A starting lighting (one stage only): the coarsest level starts from it,
-        with rho the photos divided by its shading; default rho = I, ambient.
 
     Returns
     -------
@@ -526,7 +516,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     levels = _ladder(problem, params)
     result = None
     for i, level in enumerate(levels):
-        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0, sigma0 if i == 0 else None)
+        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0)
     return result
 
 
@@ -603,8 +593,8 @@ def _level_report(progress, levels, i):
     return report
 
 
-def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float, sigma0=None) -> Result:
-    """Build one level's discretisation, start it from the level below (or ``sigma0``), iterate, and rescale."""
+def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float) -> Result:
+    """Build one level's discretisation, start it from the level below, iterate, and rescale."""
     problem, params = level.problem, level.params
     base = 0.0 if below is None else _COARSE_SHARE  # of the progress bar, taken by the levels below
     report(base, f"building the {params.domain}-domain problem")
@@ -615,14 +605,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     check_cancel()
     # Timings count from the start of the whole solve, levels below included.
     t_build = time.perf_counter() - t0
-    if below is not None:
-        rho0, sigma0 = _warm_start(problem, d, below)
-    elif sigma0 is not None:
-        from .lighting import division_start
-
-        rho0 = division_start(d, sigma0)
-    else:
-        rho0 = None
+    rho0, sigma0 = (None, None) if below is None else _warm_start(problem, d, below)
     hierarchy = None
     if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
         hierarchy = Hierarchy(block_grid(problem, d), d.B, d.BT)

@@ -1,0 +1,86 @@
+"""The lighting stage again, with the albedo edges it found freed (one step of reweighted L1).
+
+The MM of the lighting stage minimises data + TV; TV charges an albedo edge by
+its height, so the lighting it settles on lowers the edges between flat
+regions (a lower energy, a worse lighting). Run again with each TV row weighted
+down where the first run found an edge (:func:`edge_weights`), the lighting is
+left to explain the variation inside the regions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["edge_weights", "reweighted_lighting"]
+
+
+def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
+    """Per row of ``d.B``, ``e / (|B rho| + e)``: near 1 inside flat regions, small across albedo edges.
+
+    ``|B rho|`` is the colour difference across the row (the norm over the
+    channels) and ``e = eps`` times the median colour norm of rho, so the
+    weight does not depend on the albedo's scale.
+    """
+    diff = d.B @ np.asarray(rho, np.float32)
+    g = np.sqrt(np.sum(np.asarray(diff, np.float64) ** 2, axis=1))
+    e = eps * float(np.median(np.linalg.norm(rho, axis=1)))
+    return e / (g + max(e, 1e-30))
+
+
+def reweighted_lighting(problem, first, params, progress=None, cancel=None):
+    """The lighting stage again, with each TV row weighted by :func:`edge_weights` of its first albedo.
+
+    TV is an L1 penalty: it charges an albedo edge by its height, so a
+    lighting that lowers the edges between flat regions lowers the energy,
+    and the MM settles on such a lighting. Weighting each row by
+    ``e / (|B rho| + e)`` at the first result's albedo (one step of
+    reweighted L1) frees the edges found there, so the lighting is left to
+    explain the variation inside the regions. The MM restarts from
+    ``first`` (albedo and lighting) with the same model and TV weight.
+
+    Parameters
+    ----------
+    problem : core.solve.problem.Problem
+        The lighting stage's (texture domain).
+    first : core.solve.solver.Result
+        The lighting stage's result on ``problem``.
+    params : core.solve.solver.SolverParams
+        ``light_edges`` is ``eps`` of :func:`edge_weights`; ``lam``,
+        ``lighting`` and the iteration bounds apply as in the first stage.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        As :func:`core.solve.solver.solve` gives it, with ``info["edges"]``
+        (iterations and last energy of this run).
+    """
+    import time
+
+    from ..progress import check_cancel
+    from .discretization import texture_domain
+    from .solver import Result, _Channel, _iterate, _outputs, _rescaled
+
+    d = texture_domain(problem, data_model=params.data_model)
+    C = problem.channels
+    rho = first.texture.reshape(-1, C)[d.texel_index]
+    rho = np.where(np.isfinite(rho), rho, d.rho0)
+    d.base = (d.base * edge_weights(d, rho, params.light_edges)).astype(np.float32)
+    channels = [_Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
+
+    def report(it, e):
+        if progress is not None:
+            progress(it / params.max_iter, f"iteration {it}, energy {e:.6g}")
+
+    history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
+    rho, sigma = _rescaled(d, channels)
+    views, texture, seen = _outputs(problem, d, rho)
+    info = dict(first.info, edges={"iterations": len(history) - 1, "energy": history[-1:]})
+    return Result(
+        sigma=sigma,
+        views=views,
+        energy=first.energy,
+        iterations=first.iterations,
+        texture=texture,
+        seen=seen,
+        info=info,
+    )
