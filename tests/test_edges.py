@@ -26,14 +26,14 @@ def test_the_lighting_stage_with_its_edges_freed_finds_a_better_lighting():
     scene = sphere_scene(n_views=8, height=90, width=120, texture_size=64, n_cells=6, seed=1, noise=0.002)
     d = texture_domain(scene.problem)
     base = dict(lam=5.0, albedo_lam=0.3, lighting="coupled", light_size=64)
-    plain = solve(scene.problem, SolverParams(**base))
-    edges = solve(scene.problem, SolverParams(**base, light_edges=0.03))
+    plain = solve(scene.problem, SolverParams(**base, light_edges=0.0))
+    edges = solve(scene.problem, SolverParams(**base))  # the default, light_edges=0.01
     assert plain.info["lighting_stage"]["edges"] is None
     assert edges.info["lighting_stage"]["edges"]["iterations"] >= 1
     assert edges.texture.shape == (64, 64, 3) and np.isfinite(edges.texture[edges.seen]).all()
     err_plain = shading_error(d, plain.sigma, scene.sigma).mean()
     err_edges = shading_error(d, edges.sigma, scene.sigma).mean()
-    # Measured 0.137 and 0.101.
+    # Measured 0.137 and 0.092.
     assert err_edges < 0.85 * err_plain
 
 

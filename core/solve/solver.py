@@ -163,7 +163,7 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
-    light_edges: float = 0.0
+    light_edges: float = 0.01
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
