@@ -177,6 +177,7 @@ def run_case(name, work, json_path):
     work = os.path.abspath(work)
     blend = build_scene(name, work)
     started = datetime.datetime.now().isoformat(timespec="seconds")
+    sha = commit()  # the code the child runs
     mon = Monitor()
     t = time.perf_counter()
     r = run_headless(
@@ -191,7 +192,7 @@ def run_case(name, work, json_path):
     result = {
         "case": name,
         "started": started,
-        "commit": commit(),
+        "commit": sha,
         "machine": machine(),
         "photos": len(rep["cameras"]),
         "photo_size": cam["full_size"] or cam["size"],

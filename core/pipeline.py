@@ -31,6 +31,7 @@ __all__ = [
     "peak_mb",
     "uses_detail",
     "schedule",
+    "LIGHTING_PIXELS",
     "stage_progress",
     "check_cancel",
 ]
@@ -86,12 +87,33 @@ def schedule(detail: bool) -> dict:
     return DETAIL_STAGES if detail else STAGES
 
 
+#: With the detail stage, the most pixels on the mesh (all photos together) the lighting stage is solved on: a
+#: lighting of 9 numbers per channel on a texture of at most 128^2 needs no more, and the solve's time and memory
+#: grow with its pixels.
+LIGHTING_PIXELS = 8_000_000
+
+
+def _thinned(masks, budget):
+    """The masks keeping every k-th pixel of every k-th row, k the least that leaves about ``budget`` pixels."""
+    total = sum(int(np.count_nonzero(m)) for m in masks)
+    if total <= budget:
+        return masks
+    k = int(np.ceil(np.sqrt(total / budget)))
+    out = []
+    for m in masks:
+        t = np.zeros_like(m)
+        t[::k, ::k] = m[::k, ::k]
+        out.append(t if t.any() else m)
+    return out
+
+
 def _lighting_stage(problem, params, progress, cancel):
     """The two-stage solve's lighting stage alone, its albedo brought to the full texture.
 
     With the detail stage the albedo is made again from the full photos, so the working resolution's albedo
     stage would only give it a prior and a fallback: the lighting stage's albedo, scaled up, serves as well
-    (measured on the fixtures) and saves the albedo stage's time and memory.
+    (measured on the fixtures) and saves the albedo stage's time and memory. The problem's masks are thinned
+    to :data:`LIGHTING_PIXELS` (:func:`_thinned`) by the caller.
     """
     from .solve.lighting import lighting_stage
     from .solve.pyramid import upsample_bilinear
@@ -173,6 +195,9 @@ def compute(
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
     detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
+    # With the detail stage a two-stage texture solve stops after its lighting stage, on fewer pixels.
+    lighting_only = detail and opt.method == "texture" and opt.albedo_lam is not None
+    light_masks = _thinned(solve_masks, LIGHTING_PIXELS) if lighting_only else solve_masks
     stages = schedule(detail)
     solve_progress = stage_progress(progress, "solve", stages)
 
@@ -203,12 +228,12 @@ def compute(
             weights,
             threads=opt.threads,
         )
-        transfer = [transfer_maps(cells, b.uv, b.mask, b.normal) for b in bakes]
+        transfer = [transfer_maps(cells, b.uv, m, b.normal) for b, m in zip(bakes, light_masks)]
         occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(
         images=photos,
-        masks=solve_masks,
+        masks=light_masks,
         normals=[b.normal for b in bakes],
         correspondences=correspondences,
         uv=uvs,
@@ -243,7 +268,7 @@ def compute(
                 threads=opt.threads,
             )
         )
-        if detail and params.domain == "texture" and params.albedo_lam is not None:
+        if lighting_only:
             result = _lighting_stage(problem, params, solve_progress, cancel)
         else:
             result = solve(problem, params, progress=solve_progress, cancel=cancel)

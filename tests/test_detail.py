@@ -216,3 +216,15 @@ def test_the_detail_schedule_covers_the_bar_in_order_and_reads_the_scene_as_the_
     assert list(DETAIL_STAGES) == ["gather", "bake", "solve", "fuse", "detail", "write"]
     # The photos are read before the run knows which schedule it has; the files are written in the same share.
     assert DETAIL_STAGES["gather"] == STAGES["gather"] and DETAIL_STAGES["write"] == STAGES["write"]
+
+
+def test_the_lighting_stage_takes_every_kth_pixel_beyond_its_budget():
+    from core.pipeline import _thinned
+
+    masks = [np.ones((60, 80), bool), np.zeros((60, 80), bool)]
+    masks[1][10:20, 10:20] = True
+    assert _thinned(masks, 10**6) is masks  # within the budget: as they are
+    thin = _thinned(masks, 600)
+    kept = sum(int(m.sum()) for m in thin)
+    assert 0 < kept <= 1.1 * 600 and all((t <= m).all() for t, m in zip(thin, masks))
+    assert thin[0][::3, ::3].all() and not thin[0][1::3].any()  # k = 3: every third pixel of every third row
