@@ -353,7 +353,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         and problem.texture.size > params.light_size
     ):
         light_problem = with_texture_size(problem, params.light_size)
-    light_params = replace(params, albedo_lam=None)
+    light_params = replace(params.resolved(), albedo_lam=None)
     edges = params.light_edges > 0 and params.domain == "texture"
     first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel)
     if edges:
