@@ -46,6 +46,7 @@ def textured():
     [
         ("texture", "interpolate", False, 1.0),
         ("texture", "splat", False, 1.0),
+        ("texture", "nearest", False, 1.0),
         ("image", "interpolate", False, 1.0),
         ("texture", "interpolate", True, 1.0),
         ("image", "interpolate", True, 1.0),
@@ -100,6 +101,24 @@ def test_interpolated_data_term_is_zero_at_the_truth(textured):
         rho = sc.albedo_texture.reshape(-1, sc.problem.channels)[d.texel_index]
         data[model] = energy(d, rho, sc.sigma, lam=0.0, mu=0.0, delta=1e-4)
     assert data["interpolate"] < 1e-3 * data["splat"], data
+
+
+def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured):
+    splat = texture_domain(textured.problem, data_model="splat")
+    near = texture_domain(textured.problem, data_model="nearest")
+    n_pixels = splat.nu.shape[0]
+    assert np.array_equal(near.obs_pixel, np.arange(n_pixels))  # one each, in pixel order
+    # Each pixel's whole weight (both normalised to their own number of texels, so up to one factor).
+    ratio = near.obs_weight / splat.pixel_sum(splat.obs_weight.astype(np.float64))
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-4)
+    # On the texel its splats weigh most.
+    best = np.zeros(n_pixels)
+    np.maximum.at(best, splat.obs_pixel, splat.obs_weight)
+    texel = near.texel_index[near.obs_unknown]
+    same = splat.texel_index[splat.obs_unknown] == texel[splat.obs_pixel]
+    chosen = np.zeros(n_pixels)
+    chosen[splat.obs_pixel[same]] = splat.obs_weight[same]
+    np.testing.assert_allclose(chosen, best, rtol=1e-6)
 
 
 def test_plain_alternation_stalls_where_gauss_newton_does_not(textured):
@@ -217,7 +236,8 @@ def test_cancel_and_progress(varying):
         dict(delta=0),
         dict(extrapolate=-1),
         dict(extrapolate=float("nan")),
-        dict(data_model="nearest"),
+        dict(data_model="bilinear"),
+        dict(light_data_model="splats"),
         dict(max_texels_per_pixel=-1),
         dict(preconditioner="ilu"),
         dict(cg_iter=0),

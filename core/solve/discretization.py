@@ -17,7 +17,7 @@ observation per pixel, TV rows between 4-neighbours inside each mask
 Texture domain (the paper's future work): one unknown per texel that some
 pixel lands in; TV rows between texel neighbours inside the islands and
 across seams, weighted by surface length. There is no mu-term: pixels that
-land on the same texel *are* the correspondences. Two data models:
+land on the same texel *are* the correspondences. Three data models:
 
 * ``"interpolate"``: one observation per pixel, whose reflectance
   is the bilinear interpolation of the 4 texels around its UV, as a renderer
@@ -30,8 +30,13 @@ land on the same texel *are* the correspondences. Two data models:
   edges and gradients at the scale of a texel. On the rendered fixtures the
   two give the same RMSE (docs/measurements.md); on a synthetic textured
   sphere only ``"interpolate"`` reaches the truth.
+* ``"nearest"``: one observation per pixel, of the texel of largest bilinear
+  weight, with the pixel's whole weight: a quarter of the splats' work. The
+  two-stage solve's lighting stage uses it (``light_data_model``): at 128^2
+  the lighting does not need the texel-scale detail the albedo stage does
+  (docs/measurements.md).
 
-In both, ``u_o`` generalises to a row of ``A`` (a selection row for the image
+In all, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).
 """
 
@@ -322,8 +327,9 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     """Reflectance on the texels of the mesh's UV map.
 
     Each masked pixel sees the 4 texels around its UV with bilinear weights:
-    as one observation of their interpolation (``data_model="interpolate"``)
-    or as 4 splatted observations (``"splat"``); see the module docstring.
+    as one observation of their interpolation (``data_model="interpolate"``),
+    as 4 splatted observations (``"splat"``), or as one observation of the
+    texel of largest weight (``"nearest"``); see the module docstring.
     Pixel weights are the ``view_weight``, normalised so that an unknown
     carries a total data weight of 1 on average, as a pixel does in the image
     domain, so that lambda means the same in both domains. TV edges are
@@ -333,11 +339,11 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     """
     if problem.texture is None or problem.uv is None:
         raise ValueError("texture domain: the problem needs uv and a texture layout")
-    if data_model not in ("interpolate", "splat"):
-        raise ValueError(f"texture domain: data_model must be 'interpolate' or 'splat', got {data_model!r}")
+    if data_model not in ("interpolate", "splat", "nearest"):
+        raise ValueError(f"texture domain: data_model must be 'interpolate', 'splat' or 'nearest', got {data_model!r}")
     size = problem.texture.size
     offsets, values, nu = _masked_pixels(problem)
-    tex_obs, pix_obs, w_obs = _splats(problem, offsets)
+    tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest")
     seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
     texels = np.flatnonzero(seen_count > 0)
     lut = np.full(size * size, -1, dtype=np.intp)
@@ -378,13 +384,23 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     return d
 
 
-def _splats(problem: Problem, offsets: np.ndarray):
-    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight."""
+def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):
+    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight.
+
+    With ``nearest``, only the pixel's texel of largest bilinear weight, carrying the pixel's whole weight.
+    """
     inside = problem.texture.inside
     tex_obs, pix_obs, w_obs = [], [], []
     for i in range(problem.n_views):
         mask = problem.masks[i]
         flat, wts = bilinear_texels(problem.uv[i][mask], inside)
+        if nearest:
+            best = np.argmax(wts, axis=1)
+            rows = np.arange(flat.shape[0])
+            total = wts.sum(axis=1)
+            flat = np.repeat(flat[rows, best][:, None], 4, axis=1)
+            wts = np.zeros_like(wts)
+            wts[rows, best] = total
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), 4)

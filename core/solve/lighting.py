@@ -328,10 +328,10 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
 
     Solved on a texture of at most ``params.light_size`` (the lighting has 9
-    coefficients per view and channel; it needs no fine texels), started from
-    rho = I, and, when ``params.light_edges > 0`` (texture domain), solved
-    again with the albedo edges it found freed
-    (:func:`core.solve.edges.reweighted_lighting`).
+    coefficients per view and channel; it needs no fine texels) with the data
+    model ``params.light_data_model``, started from rho = I, and, when
+    ``params.light_edges > 0`` (texture domain), solved again with the albedo
+    edges it found freed (:func:`core.solve.edges.reweighted_lighting`).
 
     Returns
     -------
@@ -354,6 +354,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     ):
         light_problem = with_texture_size(problem, params.light_size)
     light_params = replace(params.resolved(), albedo_lam=None)
+    if params.domain == "texture":
+        light_params = replace(light_params, data_model=params.light_data_model)
     edges = params.light_edges > 0 and params.domain == "texture"
     first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel)
     if edges:

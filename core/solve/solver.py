@@ -92,7 +92,7 @@ class SolverParams:
     gauss_newton : bool
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
-    data_model : {"interpolate", "splat"}
+    data_model : {"interpolate", "splat", "nearest"}
         Texture domain: how a pixel sees the texels (:mod:`core.solve.discretization`).
     precision : {"float32", "float64"}
         Working precision of rho and the CG.
@@ -134,6 +134,10 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
+    light_data_model : {"nearest", "splat", "interpolate"}
+        Two stages, texture domain: the lighting stage's data model (see
+        ``data_model``); "nearest" gives each pixel one observation, of its
+        nearest texel, a quarter of the splats' work.
     light_edges : float
         Two stages, texture domain: when > 0, the lighting stage is run again
         with its TV rows weighted down across the albedo edges it found
@@ -164,6 +168,7 @@ class SolverParams:
     albedo_lam: float | None = None
     light_size: int = 128
     light_edges: float = 0.01
+    light_data_model: str = "nearest"
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -180,8 +185,11 @@ class SolverParams:
             raise ValueError(
                 f"solver: preconditioner must be 'auto', 'jacobi' or 'multigrid', got {self.preconditioner!r}"
             )
-        if self.data_model not in ("interpolate", "splat"):
-            raise ValueError(f"solver: data_model must be 'interpolate' or 'splat', got {self.data_model!r}")
+        for name in ("data_model", "light_data_model"):
+            if getattr(self, name) not in ("interpolate", "splat", "nearest"):
+                raise ValueError(
+                    f"solver: {name} must be 'interpolate', 'splat' or 'nearest', got {getattr(self, name)!r}"
+                )
         for name in ("lam", "mu", "delta"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
