@@ -4,7 +4,15 @@ import pytest
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
 from core.solve.discretization import texture_domain
-from core.solve.lighting import fit_lighting, shading_error, shared_lighting_step, solve_albedo, split_gains
+from core.solve.lighting import (
+    NEAREST_MIN_PIXELS_PER_TEXEL,
+    fit_lighting,
+    lighting_data_model,
+    shading_error,
+    shared_lighting_step,
+    solve_albedo,
+    split_gains,
+)
 from core.solve.problem import Problem
 from core.solve.solver import SolverParams, solve
 
@@ -135,3 +143,18 @@ def test_a_25_coefficient_transfer_solves(exposed, lighting):
     assert np.all(np.diff(r.energy) <= 0)
     with pytest.raises(ValueError, match="9-coefficient"):
         solve(q, SolverParams(lam=2.0, gauss_newton=True, levels=1, max_iter=1))
+
+
+def test_the_lighting_stage_takes_the_nearest_texel_only_with_enough_pixels_per_texel():
+    for size in (16, 64):
+        scene = sphere_scene(n_views=6, height=60, width=80, texture_size=size)
+        p = scene.problem
+        ratio = sum(int(m.sum()) for m in p.masks) / np.count_nonzero(p.texture.inside)
+        want = "nearest" if ratio >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
+        assert lighting_data_model(p, "nearest") == want
+        assert lighting_data_model(p, "splat") == "splat"
+        r = solve(p, SolverParams(lam=5.0, albedo_lam=0.3, max_iter=3, light_size=size))
+        assert np.isfinite(r.texture[r.seen]).all() and r.info["lighting_stage"]["data_model"] == want
+    # Both sides of the threshold are exercised.
+    assert lighting_data_model(sphere_scene(texture_size=16).problem, "nearest") == "nearest"
+    assert lighting_data_model(sphere_scene(texture_size=64).problem, "nearest") == "splat"

@@ -48,6 +48,7 @@ __all__ = [
     "split_gains",
     "solve_albedo",
     "lighting_stage",
+    "lighting_data_model",
     "solve_two_stage",
     "fit_lighting",
     "shading_error",
@@ -324,6 +325,22 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
 
+#: The least photo pixels per texel (inside the islands) of the lighting stage's texture for its "nearest"
+#: data model; with fewer, texels are left without a pixel of their own, and the 4-texel splat is used.
+#: Between 2.8 (a working resolution of 0.01 MP, where "nearest" failed) and 13.6 (the fewest of the 13
+#: fixtures, where it did as well as the splat; docs/measurements.md).
+NEAREST_MIN_PIXELS_PER_TEXEL = 8
+
+
+def lighting_data_model(problem, model: str) -> str:
+    """The lighting stage's data model: ``model``, except "nearest" on too few pixels (then "splat")."""
+    if model != "nearest" or problem.texture is None:
+        return model
+    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
+    texels = int(np.count_nonzero(problem.texture.inside))
+    return model if pixels >= NEAREST_MIN_PIXELS_PER_TEXEL * texels else "splat"
+
+
 def lighting_stage(problem, params, progress=None, cancel=None):
     """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
 
@@ -355,13 +372,14 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_problem = with_texture_size(problem, params.light_size)
     light_params = replace(params.resolved(), albedo_lam=None)
     if params.domain == "texture":
-        light_params = replace(light_params, data_model=params.light_data_model)
+        light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
     first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel)
     if edges:
         from .edges import reweighted_lighting
 
         first = reweighted_lighting(light_problem, first, light_params, part(0.6, 1.0, "edges: "), cancel)
+    first.info["data_model"] = light_params.data_model
     return light_problem, first
 
 
@@ -400,6 +418,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         "lam": params.lam,
         "lighting": params.lighting,
         "edges": first.info.get("edges"),
+        "data_model": first.info.get("data_model"),
         "pixels": sum(int(m.sum()) for m in light_problem.masks),
         "seconds": t1 - t0,
     }
