@@ -3,8 +3,8 @@
 The MM of the lighting stage minimises data + TV; TV charges an albedo edge by
 its height, so the lighting it settles on lowers the edges between flat
 regions (a lower energy, a worse lighting). Run again with each TV row weighted
-down where the first run found an edge (:func:`edge_weights`), the lighting is
-left to explain the variation inside the regions.
+down where the first run found a change of colour (:func:`edge_weights`), the
+lighting is left to explain the variation inside the regions.
 """
 
 from __future__ import annotations
@@ -15,15 +15,21 @@ __all__ = ["edge_weights", "reweighted_lighting"]
 
 
 def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
-    """Per row of ``d.B``, ``e / (|B rho| + e)``: near 1 inside flat regions, small across albedo edges.
+    """Per row of ``d.B``, ``e / (|B c| + e)``: near 1 inside flat regions, small across albedo edges.
 
-    ``|B rho|`` is the colour difference across the row (the norm over the
-    channels) and ``e = eps`` times the median colour norm of rho, so the
-    weight does not depend on the albedo's scale.
+    ``c`` is the albedo's chromaticity (``C * rho / sum(rho)`` over the C
+    channels; rho itself with one channel), so that an edge counts where the
+    colour changes: a cast shadow or shading left in the lighting stage's
+    albedo changes its brightness much more than its colour, and stays held
+    by TV. ``|B c|`` is the norm over the channels of the difference across
+    the row, and ``e = eps`` times the median norm of ``c``.
     """
-    diff = d.B @ np.asarray(rho, np.float32)
+    x = np.asarray(rho, np.float64)
+    if x.shape[1] > 1:
+        x = x.shape[1] * x / np.maximum(x.sum(axis=1, keepdims=True), 1e-12)
+    diff = d.B @ x.astype(np.float32)
     g = np.sqrt(np.sum(np.asarray(diff, np.float64) ** 2, axis=1))
-    e = eps * float(np.median(np.linalg.norm(rho, axis=1)))
+    e = eps * float(np.median(np.linalg.norm(x, axis=1)))
     return e / (g + max(e, 1e-30))
 
 

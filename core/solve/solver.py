@@ -142,7 +142,7 @@ class SolverParams:
         Two stages, texture domain: when > 0, the lighting stage is run again
         with its TV rows weighted down across the albedo edges it found
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
-        relative to the albedo's median); 0 skips it.
+        relative to the median of the albedo's chromaticity); 0 skips it.
     """
 
     domain: str = "texture"
@@ -167,7 +167,7 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
-    light_edges: float = 0.01
+    light_edges: float = 0.003
     light_data_model: str = "nearest"
 
     def resolved(self) -> SolverParams:
