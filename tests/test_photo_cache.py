@@ -56,3 +56,36 @@ def test_an_output_folder_that_is_a_file_is_refused_before_anything_is_written(t
     (tmp_path / "out").write_text("a file")
     with pytest.raises(DelightError, match="is a file"):
         PhotoCache(tmp_path / "out" / "deeper").put(np.zeros((2, 2, 3), np.float32))
+
+
+def test_a_killed_runs_copies_are_removed_by_the_next_run_and_no_others(tmp_path):
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    # A real run killed with its copies on disk: it cannot clean up.
+    code = (
+        "import os, signal, sys, numpy as np; sys.path.insert(0, sys.argv[2]);"
+        "from core.io.photo_cache import PhotoCache;"
+        "c = PhotoCache(sys.argv[1]); c.put(np.ones((8, 8, 3), np.float32));"
+        "os.kill(os.getpid(), signal.SIGKILL)"
+    )
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    subprocess.run([sys.executable, "-c", code, str(tmp_path), root], check=False, timeout=60)
+    (killed,) = [f for f in os.listdir(tmp_path) if f.startswith(PREFIX)]
+    # Others: a live run's, another machine's, a recent one without an owner, and a user's file of that name.
+    for name, owner in (("live", f"{socket.gethostname()} {os.getpid()}"), ("other", "elsewhere 1")):
+        (tmp_path / f"{PREFIX}{name}").mkdir()
+        (tmp_path / f"{PREFIX}{name}" / "owner").write_text(owner)
+    (tmp_path / f"{PREFIX}recent").mkdir()
+    (tmp_path / f"{PREFIX}old").mkdir()
+    old = time.time() - 2 * 3600
+    os.utime(tmp_path / f"{PREFIX}old", (old, old))
+    (tmp_path / f"{PREFIX}file").write_text("not ours to judge")
+    cache = PhotoCache(tmp_path)
+    cache.put(np.zeros((4, 4, 3), np.float32))
+    cache.close()
+    left = sorted(os.listdir(tmp_path))
+    assert killed not in left and f"{PREFIX}old" not in left
+    assert left == sorted(f"{PREFIX}{n}" for n in ("live", "other", "recent", "file"))

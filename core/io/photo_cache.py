@@ -5,7 +5,8 @@ may do it); each photo is downscaled to the working resolution for the solve, an
 (:mod:`core.texture.detail`) reads the full-resolution copy again later, from any thread. :class:`PhotoCache`
 keeps those copies as half floats in a hidden folder ``.delight-photos-*`` inside the output folder (on the disk
 the outputs go to, which is checked for room; a system temporary folder may live in memory), and removes the
-folder when closed, when the run fails, or at the latest when the cache is collected.
+folder when closed, when the run fails, or at the latest when the cache is collected. A run that was killed
+cannot remove its folder; the next run into the same output folder does (:func:`remove_stale`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from __future__ import annotations
 import functools
 import os
 import shutil
+import socket
 import tempfile
+import time
 import weakref
 
 import numpy as np
@@ -21,13 +24,54 @@ import numpy as np
 from ..errors import DelightError
 from .outputs import check_writable
 
-__all__ = ["PhotoCache", "PREFIX"]
+__all__ = ["PhotoCache", "PREFIX", "remove_stale"]
 
 PREFIX = ".delight-photos-"
 # The largest half float: brighter values are clipped to it.
 _HALF_MAX = 65504.0
 # Free space left on the disk beyond the copies.
 _SPARE_BYTES = 256 * 2**20
+# Which run a cache folder belongs to: "host pid".
+_OWNER = "owner"
+# A cache folder without an owner (made before owners were written) counts as stale after this long.
+_OWNERLESS_STALE_S = 3600
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, but not ours to signal
+        return True
+    return True
+
+
+def remove_stale(parent) -> list:
+    """Remove the cache folders in ``parent`` left by runs of this machine that are no longer running.
+
+    Returns the folders removed. A folder of another machine (a shared disk) or of a live process stays.
+    """
+    removed = []
+    try:
+        names = [n for n in os.listdir(parent) if n.startswith(PREFIX)]
+    except OSError:
+        return removed
+    for name in names:
+        folder = os.path.join(parent, name)
+        try:
+            with open(os.path.join(folder, _OWNER)) as fh:
+                host, pid = fh.read().split()
+            stale = host == socket.gethostname() and not _alive(int(pid))
+        except (OSError, ValueError):
+            try:
+                stale = time.time() - os.path.getmtime(folder) > _OWNERLESS_STALE_S
+            except OSError:
+                stale = False
+        if stale and os.path.isdir(folder) and not os.path.islink(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
 
 
 def _load(path, clipped_path):
@@ -71,7 +115,10 @@ class PhotoCache:
             top = os.path.dirname(top)
         try:
             os.makedirs(self.parent, exist_ok=True)
+            remove_stale(self.parent)
             self.folder = tempfile.mkdtemp(prefix=PREFIX, dir=self.parent)
+            with open(os.path.join(self.folder, _OWNER), "w") as fh:
+                fh.write(f"{socket.gethostname()} {os.getpid()}")
         except OSError as exc:
             _remove(self.folder, made[::-1])
             raise DelightError(f"cannot keep the full-resolution photos in {self.parent}: {exc}") from None
