@@ -38,6 +38,7 @@ from .raycast import raycast
 from .texels import bilinear_texels, texel_index
 
 __all__ = [
+    "A_BAND",
     "sphere_directions",
     "open_factor",
     "visibility",
@@ -48,9 +49,9 @@ __all__ = [
     "transfer_maps",
 ]
 
-# The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
-# vanish, so an open point sees nothing of band 3, and band 4 at -1/6 of its band-2 weight.
-_A_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, 0.0, -np.pi / 24])
+#: The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
+#: vanish, so an open point sees nothing of band 3, and band 4 at -1/6 of its band-2 weight.
+A_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, 0.0, -np.pi / 24])
 # Bands above 2 are scaled like band 2 (their A_l is 0 or small).
 _NORM_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, np.pi / 4, np.pi / 4])
 
@@ -58,7 +59,7 @@ _NORM_BAND = np.array([np.pi, 2 * np.pi / 3, np.pi / 4, np.pi / 4, np.pi / 4])
 def open_factor(k: int) -> np.ndarray:
     """Per coefficient, the transfer of an unoccluded point over its ``sh_basis`` value (1 up to band 2)."""
     b = sh_degree(k)
-    return _A_BAND[b] / _NORM_BAND[b]
+    return A_BAND[b] / _NORM_BAND[b]
 
 
 def sphere_directions(k: int) -> np.ndarray:

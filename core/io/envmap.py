@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.transfer import _A_BAND
+from ..geometry.transfer import A_BAND
 from ..solve.sh import sh_basis, sh_degree
 
 __all__ = [
@@ -78,7 +78,7 @@ def equirect_directions(width: int, height: int) -> tuple[np.ndarray, np.ndarray
 def radiance_sh(sigma) -> np.ndarray:
     """The environment radiance's coefficients ``pi sigma_k / A_l`` of shading coefficients ``(..., 9)``."""
     s = np.asarray(sigma, dtype=np.float64)
-    return s * (np.pi / _A_BAND[sh_degree(s.shape[-1])])
+    return s * (np.pi / A_BAND[sh_degree(s.shape[-1])])
 
 
 def world_lighting(sigma) -> np.ndarray:
