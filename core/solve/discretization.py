@@ -394,16 +394,12 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):
     for i in range(problem.n_views):
         mask = problem.masks[i]
         flat, wts = bilinear_texels(problem.uv[i][mask], inside)
-        if nearest:
-            best = np.argmax(wts, axis=1)
-            rows = np.arange(flat.shape[0])
-            total = wts.sum(axis=1)
-            flat = np.repeat(flat[rows, best][:, None], 4, axis=1)
-            wts = np.zeros_like(wts)
-            wts[rows, best] = total
+        if nearest:  # one column: the texel of largest weight, with the pixel's whole weight
+            best = np.argmax(wts, axis=1)[:, None]
+            flat, wts = np.take_along_axis(flat, best, axis=1), wts.sum(axis=1, keepdims=True)
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
-        pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), 4)
+        pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), flat.shape[1])
         keep = wts.ravel() > 0
         tex_obs.append(flat.ravel()[keep])
         pix_obs.append(pix[keep])
