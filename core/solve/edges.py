@@ -39,9 +39,9 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     TV is an L1 penalty: it charges an albedo edge by its height, so a
     lighting that lowers the edges between flat regions lowers the energy,
     and the MM settles on such a lighting. Weighting each row by
-    ``e / (|B rho| + e)`` at the first result's albedo (one step of
-    reweighted L1) frees the edges found there, so the lighting is left to
-    explain the variation inside the regions. The MM restarts from
+    :func:`edge_weights` of the first result's albedo (one step of
+    reweighted L1) frees the changes of colour found there, so the lighting
+    is left to explain the variation inside the regions. The MM restarts from
     ``first`` (albedo and lighting) with the same model and TV weight.
 
     Parameters

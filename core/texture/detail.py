@@ -109,8 +109,8 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None) ->
     Each pixel's own albedo (its value over its floored shading) is compared with the weighted median of all
     views' own albedos in its texel of a coarse reference texture (:func:`core.texture.fuse.fuse_views`, whose
     median a highlight or a misregistered edge in one view does not move); the log ratio e (RMS over the
-    channels) gives the Cauchy weight ``1 / (1 + (e / s)^2)``, with s a few robust standard deviations of e over
-    all pixels of all views.
+    channels) gives Tukey's biweight ``(1 - min(e / s, 1)^2)^2``, at least a small floor, with s 4.685 robust
+    standard deviations of e over all pixels of all views (at least 0.1).
 
     Parameters
     ----------
