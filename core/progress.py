@@ -16,6 +16,7 @@ import time
 from .errors import Cancelled
 
 __all__ = [
+    "sub_progress",
     "STAGES",
     "DETAIL_STAGES",
     "stage_progress",
@@ -42,18 +43,27 @@ DETAIL_STAGES = {
 }
 
 
-def stage_progress(progress, stage: str, stages: dict | None = None):
-    """A progress callback for one stage of ``stages`` (default :data:`STAGES`), mapped into its share of the bar.
+def sub_progress(progress, lo: float, hi: float, label: str = ""):
+    """A progress callback mapped into ``(lo, hi)`` of ``progress``'s bar, its messages prefixed ``"label: "``.
 
-    Its messages are prefixed with the stage's name. With ``progress=None`` it does nothing.
+    With ``progress=None`` it does nothing.
     """
-    lo, hi = (STAGES if stages is None else stages)[stage]
 
     def report(fraction=0.0, message=""):
         if progress is not None:
-            progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), f"{stage}: {message}" if message else stage)
+            text = (f"{label}: {message}" if message else label) if label else message
+            progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), text)
 
     return report
+
+
+def stage_progress(progress, stage: str, stages: dict | None = None):
+    """A progress callback for one stage of ``stages`` (default :data:`STAGES`), mapped into its share of the bar.
+
+    Its messages are prefixed with the stage's name (:func:`sub_progress`). With ``progress=None`` it does nothing.
+    """
+    lo, hi = (STAGES if stages is None else stages)[stage]
+    return sub_progress(progress, lo, hi, stage)
 
 
 def stage_of(message: str) -> str | None:

@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import Cancelled
+from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
@@ -357,11 +358,6 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     """
     from .solver import solve
 
-    def part(lo, hi, label):
-        if progress is None:
-            return None
-        return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}{msg}")
-
     light_problem = problem
     if (
         params.domain == "texture"
@@ -374,11 +370,12 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
-    first = solve(light_problem, light_params, part(0.0, 0.6 if edges else 1.0, ""), cancel)
+    first = solve(light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges else 1.0), cancel)
     if edges:
         from .edges import reweighted_lighting
 
-        first = reweighted_lighting(light_problem, first, light_params, part(0.6, 1.0, "edges: "), cancel)
+        edges_progress = sub_progress(progress, 0.6, 1.0, "edges")
+        first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
     first.info["data_model"] = light_params.data_model
     return light_problem, first
 
@@ -400,17 +397,12 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
 
     t0 = time.perf_counter()
 
-    def part(lo, hi, label):
-        if progress is None:
-            return None
-        return lambda f, msg: progress(lo + (hi - lo) * f, f"{label}: {msg}")
-
-    light_problem, first = lighting_stage(problem, params, part(0.0, 0.6, "lighting"), cancel)
+    light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
     first.views = None  # not needed: free them before the larger stage
     t1 = time.perf_counter()
-    second = solve_albedo(
-        problem, first.sigma, replace(params, lam=params.albedo_lam), progress=part(0.6, 1.0, "albedo"), cancel=cancel
-    )
+    albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
+    albedo_params = replace(params, lam=params.albedo_lam)
+    second = solve_albedo(problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel)
     second.info["lighting_stage"] = {
         "iterations": first.iterations,
         "energy": first.energy[-1:],
