@@ -14,7 +14,7 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
   (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.solver.SolverParams`);
 * ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
   the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
-  default), then the albedo solved again with that lighting held fixed and the albedo stage's TV weight
+  default), then the albedo solved again with that lighting held fixed and the albedo stage's TV weight and edges
   (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
   ``ceiling_divide`` the photos divided by the fitted shading, without TV;
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
@@ -206,7 +206,8 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
             div[d.texel_index] = division_start(d, sigma)
             seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
             out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
-        r = solve_albedo(problem, sigma, SolverParams(lam=lam), d=d)
+        edges = sets.get("albedo_edges", SolverParams.albedo_edges)
+        r = solve_albedo(problem, sigma, SolverParams(lam=lam, albedo_edges=edges), d=d)
         out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
     return out
 

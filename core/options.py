@@ -201,11 +201,11 @@ SPEC = (
         "float",
         ALBEDO_LAMBDA,
         "Albedo lambda",
-        "Smoothness weight of the second stage, "
-        "which solves the albedo again under the lighting of the first; smaller keeps finer detail",
+        "Smoothness weight of the second stage, which solves the albedo again under the lighting of the first; "
+        "lowered across changes of colour, so it smooths leftover shading; smaller keeps finer detail",
         min=0.0,
         soft_min=0.0,
-        soft_max=10.0,
+        soft_max=100.0,
         flag="--albedo-lambda",
         metavar="L|none",
         none="one stage, as the paper",

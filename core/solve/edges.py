@@ -1,10 +1,15 @@
-"""The lighting stage again, with the albedo edges it found freed (one step of reweighted L1).
+"""TV weighted down across changes of colour (:func:`edge_weights`), in both stages of the two-stage solve.
 
 The MM of the lighting stage minimises data + TV; TV charges an albedo edge by
 its height, so the lighting it settles on lowers the edges between flat
 regions (a lower energy, a worse lighting). Run again with each TV row weighted
-down where the first run found a change of colour (:func:`edge_weights`), the
-lighting is left to explain the variation inside the regions.
+down where the first run found a change of colour (:func:`reweighted_lighting`),
+the lighting is left to explain the variation inside the regions.
+
+The albedo stage (:func:`core.solve.lighting.solve_albedo`) weights its rows
+the same way, from its start: a strong TV weight then smooths the shading left
+inside regions of one colour (a shadow changes brightness, not colour) while
+the changes of colour keep their height.
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ the shading they give over the observations.
 
 from __future__ import annotations
 
+import copy
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -38,8 +39,9 @@ from .discretization import image_domain, texture_domain
 from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
-#: TV weight of the albedo stage, chosen by leave-one-scene-out over the fixtures (docs/measurements.md).
-ALBEDO_LAMBDA = 1.0
+#: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
+#: fixtures (docs/measurements.md).
+ALBEDO_LAMBDA = 20.0
 
 __all__ = [
     "ALBEDO_LAMBDA",
@@ -50,6 +52,7 @@ __all__ = [
     "solve_albedo",
     "lighting_stage",
     "lighting_data_model",
+    "pixels_per_texel",
     "solve_two_stage",
     "fit_lighting",
     "shading_error",
@@ -238,6 +241,30 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
     return out
 
 
+#: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
+#: fewer photo pixels per texel than this: there each texel's division of the photos is mostly noise, which
+#: the MM takes many iterations to smooth and the edge weights would take for changes of colour.
+COARSE_START_PIXELS = 2.0
+#: Iterations at most of that half-size solve, and the least size it is solved at.
+COARSE_START_ITER = 30
+COARSE_START_MIN_SIZE = 64
+
+
+def pixels_per_texel(problem) -> float:
+    """Photo pixels on the mesh per texel inside the UV islands of ``problem.texture``."""
+    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
+    return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
+
+
+def _coarse_start(problem, d, sigma, params, fallback, progress, cancel):
+    """:func:`solve_albedo` at half the size, sampled bilinearly at d's texels (``fallback`` where unseen)."""
+    quick = replace(params, max_iter=COARSE_START_ITER, min_iter=min(params.min_iter, COARSE_START_ITER))
+    coarse = solve_albedo(with_texture_size(problem, problem.texture.size // 2), sigma, quick, None, progress, cancel)
+    fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
+    rho = fine.reshape(-1, fine.shape[-1])[d.texel_index]
+    return np.where(np.isfinite(rho), rho, fallback).astype(np.float32)
+
+
 def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
@@ -247,11 +274,15 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     sigma : (m, C, 9) array
         The lighting of each view (as :class:`core.solve.solver.Result` gives it).
     params : core.solve.solver.SolverParams
-        ``lam`` is the TV weight; ``max_iter``, ``min_iter``, ``tol``, ``delta``,
+        ``lam`` is the TV weight, lowered across the changes of colour of the
+        start by ``albedo_edges`` (texture domain); ``max_iter``, ``min_iter``, ``tol``, ``delta``,
         ``cg_iter``, ``threads``, ``extrapolate`` and ``max_texels_per_pixel``
         apply as in :func:`core.solve.solver.solve`.
     rho0 : (n, C) array, optional
-        Start; default :func:`division_start`.
+        Start; default :func:`division_start`, or with fewer than
+        :data:`COARSE_START_PIXELS` pixels per texel (texture domain) this
+        function's result at half the size. ``albedo_edges`` takes its edges
+        from the start.
     d : Discretization, optional
         The problem's, if already built.
 
@@ -288,6 +319,15 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     t_build = time.perf_counter() - t0
     if rho0 is None:
         rho0 = division_start(d, sigma)
+        size = problem.texture.size if d.domain == "texture" else 0
+        if size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
+            rho0 = _coarse_start(problem, d, sigma, params, rho0, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
+            progress = sub_progress(progress, 0.3, 1.0)
+    if params.albedo_edges > 0 and d.domain == "texture":
+        from .edges import edge_weights
+
+        d = copy.copy(d)  # the weights are this solve's: the caller's d keeps its own
+        d.base = (d.base * edge_weights(d, rho0, params.albedo_edges)).astype(np.float32)
     channels = []
     for c in range(problem.channels):
         ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
@@ -337,9 +377,7 @@ def lighting_data_model(problem, model: str) -> str:
     """The lighting stage's data model: ``model``, except "nearest" on too few pixels (then "splat")."""
     if model != "nearest" or problem.texture is None:
         return model
-    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
-    texels = int(np.count_nonzero(problem.texture.inside))
-    return model if pixels >= NEAREST_MIN_PIXELS_PER_TEXEL * texels else "splat"
+    return model if pixels_per_texel(problem) >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
 
 
 def lighting_stage(problem, params, progress=None, cancel=None):

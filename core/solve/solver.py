@@ -143,6 +143,13 @@ class SolverParams:
         with its TV rows weighted down across the albedo edges it found
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
+    albedo_edges : float
+        Texture domain, lighting fixed (:func:`core.solve.lighting.solve_albedo`,
+        the albedo stage): when > 0, each TV row is weighted by
+        :func:`core.solve.edges.edge_weights` of the albedo's start (the photos
+        divided by the shading) with this edge scale, so TV smooths what is left
+        of the shading inside regions of one colour and spares the changes of
+        colour; 0: plain TV.
     """
 
     domain: str = "texture"
@@ -169,6 +176,7 @@ class SolverParams:
     light_size: int = 128
     light_edges: float = 0.003
     light_data_model: str = "nearest"
+    albedo_edges: float = 0.002
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -212,8 +220,10 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        if not np.isfinite(self.light_edges) or self.light_edges < 0:
-            raise ValueError(f"solver: light_edges must be finite and >= 0, got {self.light_edges}")
+        for name in ("light_edges", "albedo_edges"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
