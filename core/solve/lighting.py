@@ -257,12 +257,16 @@ def pixels_per_texel(problem) -> float:
 
 
 def _coarse_start(problem, d, sigma, params, fallback, progress, cancel):
-    """:func:`solve_albedo` at half the size, sampled bilinearly at d's texels (``fallback`` where unseen)."""
+    """:func:`solve_albedo` at half the size, sampled bilinearly at d's texels (``fallback`` where unseen).
+
+    Returns the start and a summary of that solve (its size and iterations).
+    """
     quick = replace(params, max_iter=COARSE_START_ITER, min_iter=min(params.min_iter, COARSE_START_ITER))
     coarse = solve_albedo(with_texture_size(problem, problem.texture.size // 2), sigma, quick, None, progress, cancel)
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
     rho = fine.reshape(-1, fine.shape[-1])[d.texel_index]
-    return np.where(np.isfinite(rho), rho, fallback).astype(np.float32)
+    summary = {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
+    return np.where(np.isfinite(rho), rho, fallback).astype(np.float32), summary
 
 
 def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None):
@@ -317,11 +321,14 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )
     t_build = time.perf_counter() - t0
+    coarse = None
     if rho0 is None:
         rho0 = division_start(d, sigma)
         size = problem.texture.size if d.domain == "texture" else 0
         if size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
-            rho0 = _coarse_start(problem, d, sigma, params, rho0, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
+            rho0, coarse = _coarse_start(
+                problem, d, sigma, params, rho0, sub_progress(progress, 0.0, 0.3, "half size"), cancel
+            )
             progress = sub_progress(progress, 0.3, 1.0)
     if params.albedo_edges > 0 and d.domain == "texture":
         from .edges import edge_weights
@@ -362,6 +369,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         "n_unknowns": d.n_unknowns,
         "domain": d.domain,
         "solved_size": problem.texture.size if d.domain == "texture" else None,
+        "coarse_start": coarse,
     }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
