@@ -243,8 +243,9 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
 
 #: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
 #: fewer photo pixels per texel than this: there each texel's division of the photos is mostly noise, which
-#: the MM takes many iterations to smooth and the edge weights would take for changes of colour.
-COARSE_START_PIXELS = 2.0
+#: the MM takes many iterations to smooth and the edge weights would take for changes of colour. Between
+#: 2.03 (lambert_sky at 512², where it paid) and 3.56 (the sparsest fixture at 256², where it did not).
+COARSE_START_PIXELS = 3.0
 #: Iterations at most of that half-size solve, and the least size it is solved at.
 COARSE_START_ITER = 30
 COARSE_START_MIN_SIZE = 64
