@@ -257,17 +257,15 @@ def pixels_per_texel(problem) -> float:
     return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
 
 
-def _coarse_start(problem, d, sigma, params, fallback, progress, cancel):
-    """:func:`solve_albedo` at half the size, sampled bilinearly at d's texels (``fallback`` where unseen).
+def _half_size_start(problem, sigma, params, progress, cancel):
+    """:func:`solve_albedo` at half the size, sampled bilinearly at the texel centres of ``problem.texture``.
 
-    Returns the start and a summary of that solve (its size and iterations).
+    Returns that texture (NaN where unseen) and a summary of the solve (its size and iterations).
     """
     quick = replace(params, max_iter=COARSE_START_ITER, min_iter=min(params.min_iter, COARSE_START_ITER))
     coarse = solve_albedo(with_texture_size(problem, problem.texture.size // 2), sigma, quick, None, progress, cancel)
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
-    rho = fine.reshape(-1, fine.shape[-1])[d.texel_index]
-    summary = {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
-    return np.where(np.isfinite(rho), rho, fallback).astype(np.float32), summary
+    return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
 
 
 def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None):
@@ -315,22 +313,27 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
             return r
+    half = coarse = None
+    domain = params.domain if d is None else d.domain
+    size = problem.texture.size if domain == "texture" else 0
+    if rho0 is None and size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
+        # Solved before this size's problem is built, so that the two are not held at once.
+        half, coarse = _half_size_start(problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
+        progress = sub_progress(progress, 0.3, 1.0)
+    t_build0 = time.perf_counter()
     if d is None:
         d = (
             texture_domain(problem, data_model=params.data_model)
             if params.domain == "texture"
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )
-    t_build = time.perf_counter() - t0
-    coarse = None
+    t_build = time.perf_counter() - t_build0
     if rho0 is None:
         rho0 = division_start(d, sigma)
-        size = problem.texture.size if d.domain == "texture" else 0
-        if size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
-            rho0, coarse = _coarse_start(
-                problem, d, sigma, params, rho0, sub_progress(progress, 0.0, 0.3, "half size"), cancel
-            )
-            progress = sub_progress(progress, 0.3, 1.0)
+        if half is not None:
+            rho = half.reshape(-1, half.shape[-1])[d.texel_index]
+            rho0 = np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
+            half = None
     if params.albedo_edges > 0 and d.domain == "texture":
         from .edges import edge_weights
 
