@@ -14,9 +14,11 @@ the changes of colour keep their height.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
-__all__ = ["edge_weights", "reweighted_lighting"]
+__all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
 
 def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
@@ -36,6 +38,13 @@ def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
     g = np.sqrt(np.sum(np.asarray(diff, np.float64) ** 2, axis=1))
     e = eps * float(np.median(np.linalg.norm(x, axis=1)))
     return e / (g + max(e, 1e-30))
+
+
+def with_edges_freed(d, rho: np.ndarray, eps: float):
+    """A shallow copy of ``d`` whose TV rows are weighted by :func:`edge_weights` of ``rho``; ``d`` keeps its own."""
+    out = copy.copy(d)
+    out.base = (d.base * edge_weights(d, rho, eps)).astype(np.float32)
+    return out
 
 
 def reweighted_lighting(problem, first, params, progress=None, cancel=None):
@@ -75,7 +84,7 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     C = problem.channels
     rho = first.texture.reshape(-1, C)[d.texel_index]
     rho = np.where(np.isfinite(rho), rho, d.rho0)
-    d.base = (d.base * edge_weights(d, rho, params.light_edges)).astype(np.float32)
+    d = with_edges_freed(d, rho, params.light_edges)
     channels = [_Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
 
     def report(it, e):

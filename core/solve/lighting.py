@@ -26,7 +26,6 @@ the shading they give over the observations.
 
 from __future__ import annotations
 
-import copy
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -335,10 +334,9 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             rho0 = np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
             half = None
     if params.albedo_edges > 0 and d.domain == "texture":
-        from .edges import edge_weights
+        from .edges import with_edges_freed
 
-        d = copy.copy(d)  # the weights are this solve's: the caller's d keeps its own
-        d.base = (d.base * edge_weights(d, rho0, params.albedo_edges)).astype(np.float32)
+        d = with_edges_freed(d, rho0, params.albedo_edges)
     channels = []
     for c in range(problem.channels):
         ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
