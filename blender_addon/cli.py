@@ -18,15 +18,16 @@ unknown option, a word where a number belongs); 130 when interrupted.
 """
 
 if __name__ == "__main__" and not __package__:
-    # Run as a script by `blender -P`: import the package by name from beside
-    # this file (the package itself only uses relative imports).
+    # Run as a script by `blender -P`: import the package from beside this file by its folder's own name
+    # (blender_addon in the repository, the extension's id where Blender installed it).
+    import importlib
     import os
     import sys
 
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    from blender_addon.cli import main, script_argv
-
-    sys.exit(main(script_argv(sys.argv), blend_loaded=True))
+    _here = os.path.dirname(os.path.abspath(__file__))
+    sys.path.insert(0, os.path.dirname(_here))
+    _cli = importlib.import_module(os.path.basename(_here) + ".cli")
+    sys.exit(_cli.main(_cli.script_argv(sys.argv), blend_loaded=True))
 
 import argparse
 import os

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -48,9 +49,11 @@ def run_cli(*args, cwd=ROOT):
     )
 
 
-def run_script(blend, *args):
+SCRIPT = os.path.join(ROOT, "blender_addon", "cli.py")
+
+
+def run_script(blend, *args, script=SCRIPT):
     """As ``blender -b BLEND -P blender_addon/cli.py -- ARGS``: Blender opens the file, then runs the script."""
-    script = os.path.join(ROOT, "blender_addon", "cli.py")
     code = (
         "import runpy, sys, bpy\n"
         f"bpy.ops.wm.open_mainfile(filepath={str(blend)!r})\n"
@@ -92,6 +95,17 @@ def test_blender_P_script_path_takes_the_same_options(tmp_path):
     assert [c["name"] for c in report["cameras"]] == [s.cameras[0].name, s.cameras[2].name]
     assert report["parameters"]["lambda"] == 2.5
     assert digest(blend) == before
+
+
+def test_blender_P_script_path_runs_from_an_installed_extension_folder(tmp_path):
+    # Blender installs the extension under its id (extensions/user_default/<id>/), not as blender_addon.
+    blend, s = save_scene(tmp_path)
+    installed = tmp_path / "extensions" / "delight"
+    shutil.copytree(os.path.join(ROOT, "blender_addon"), installed, symlinks=False)
+    out = tmp_path / "out"
+    p = run_script(blend, *FAST, "--out", out, script=str(installed / "cli.py"))
+    assert p.returncode == 0, p.stderr
+    assert (out / "Target_albedo.exr").is_file()
 
 
 def photos_in_views(tmp_path):
