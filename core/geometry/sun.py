@@ -1,0 +1,140 @@
+"""Where the sun is: the direction whose cast shadows and terminator match the photos' brightness changes.
+
+Second-order SH shading (with or without occlusion, :mod:`core.geometry.transfer`)
+cannot draw the sharp shadow of a small sun, so under a sun the shadows stay in
+the albedo. A sun term ``s * V(x, w) max(0, n . w)`` (V: does x see the sun
+along w) can, once its direction w is known. This module finds w from the
+photos and the mesh alone.
+
+Across a shadow's edge the photo's brightness changes by the sun's share of
+the light, wherever the albedo is; across a change of albedo it changes
+whatever the lighting. So over pairs of neighbouring pixels of every photo,
+the change of log brightness correlates with the change of the sun term
+``f_w = V(x, w) max(0, n . w)`` for the true w and for no other: for each of
+``n_directions`` candidate directions spread over the sphere we cast one
+shadow map (:func:`core.geometry.transfer.visibility`) and score
+
+``score(w) = sum_pairs d(log I) * d(f_w) / |d(f_w)|``,
+
+the changes of log brightness clipped to +-1 so that albedo edges weigh no
+more than a hard shadow. The best candidate is then refined on finer sets
+of directions around it: the score peaks sharply at hard shadows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .transfer import sphere_directions, visibility
+
+__all__ = ["SunSearch", "find_sun"]
+
+
+@dataclass
+class SunSearch:
+    """The result of :func:`find_sun`."""
+
+    direction: np.ndarray  # (3,) unit vector towards the sun, world space
+    score: float  # the correlation of the best direction, in [-1, 1]
+    directions: np.ndarray  # (K, 3) every candidate scored, coarse then refined
+    scores: np.ndarray  # (K,) their correlations
+
+
+def _pairs(photos, masks, positions, normals, step):
+    """Neighbouring masked pixels (right and down) on every ``step``-th row and column of each photo.
+
+    Returns the points and normals of both ends, stacked (first ends, then second ends), and the change of
+    log luminance from the first to the second, clipped to +-1.
+    """
+    ends, dlog = [[], [], [], []], []
+    for photo, mask, pos, nrm in zip(photos, masks, positions, normals):
+        lum = np.asarray(photo, np.float64)[..., :3].mean(axis=-1)
+        log_lum = np.log(np.maximum(lum, 1e-3))
+        h, w = mask.shape
+        r, c = (a.ravel() for a in np.mgrid[0 : h - 1 : step, 0 : w - 1 : step])
+        for dr, dc in ((0, 1), (1, 0)):
+            ok = mask[r, c] & mask[r + dr, c + dc]
+            r0, c0, r1, c1 = r[ok], c[ok], r[ok] + dr, c[ok] + dc
+            for k, a in enumerate((pos[r0, c0], nrm[r0, c0], pos[r1, c1], nrm[r1, c1])):
+                ends[k].append(a)
+            dlog.append(log_lum[r1, c1] - log_lum[r0, c0])
+    p0, n0, p1, n1 = (np.concatenate(e).astype(np.float64) for e in ends)
+    return np.concatenate([p0, p1]), np.concatenate([n0, n1]), np.clip(np.concatenate(dlog), -1.0, 1.0)
+
+
+def _correlations(points, normals, dlog, tri_pos, directions, resolution, threads):
+    n = dlog.size
+    vis = visibility(points, normals, tri_pos, directions, resolution, threads=threads)
+    f = vis * np.maximum(normals @ directions.T, 0.0)
+    df = f[n:] - f[:n]
+    norm = np.sqrt((df * df).sum(axis=0)) * max(float(np.sqrt(dlog @ dlog)), 1e-12)
+    return np.where(norm > 0, (dlog @ df) / np.maximum(norm, 1e-300), 0.0)
+
+
+def _cone(axis, half_angle, k):
+    """``k`` directions spread evenly over the cap of ``half_angle`` radians around ``axis``."""
+    i = np.arange(k) + 0.5
+    z = 1.0 - (1.0 - np.cos(half_angle)) * i / k
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    local = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, a)
+    x /= np.linalg.norm(x)
+    y = np.cross(a, x)
+    return local @ np.stack([x, y, a])
+
+
+def find_sun(
+    photos,
+    masks,
+    positions,
+    normals,
+    tri_pos,
+    n_directions: int = 400,
+    n_refine: int = 30,
+    rounds: int = 3,
+    step: int = 3,
+    resolution: int = 256,
+    threads=None,
+) -> SunSearch:
+    """The direction towards the sun that best explains the photos' brightness changes (module docstring).
+
+    Parameters
+    ----------
+    photos : list of (H, W, C) arrays
+        Linear photos (C >= 1; the mean of the first three channels is used).
+    masks, positions, normals : lists of (H, W), (H, W, 3), (H, W, 3) arrays
+        Per photo, the pixels on the mesh and their world position and unit normal (the bake's).
+    tri_pos : (T, 3, 3) array
+        The mesh's triangles, world space: the shadow casters.
+    n_directions : int
+        Candidates spread over the whole sphere (no "up" is assumed).
+    n_refine, rounds : int
+        Refinement: ``rounds`` times, ``n_refine`` candidates in a cap of 1.5 spacings around the best so far,
+        cast at twice the resolution (each round's candidates about half as far apart; 0: none).
+    step : int
+        Pairs are taken on every ``step``-th row and column.
+    resolution : int
+        Side of each coarse shadow map.
+    threads : int or None
+        As :func:`core.geometry.transfer.visibility`.
+    """
+    points, nrm, dlog = _pairs(photos, masks, positions, normals, step)
+    if dlog.size == 0:
+        raise ValueError("sun search: no two neighbouring pixels on the mesh in any photo")
+    tri_pos = np.asarray(tri_pos, np.float64)
+    dirs = sphere_directions(n_directions)
+    scores = _correlations(points, nrm, dlog, tri_pos, dirs, resolution, threads)
+    spacing = np.sqrt(4 * np.pi / n_directions)
+    for _ in range(rounds if n_refine > 0 else 0):
+        # A cap of 1.5 spacings around the best so far, its candidates about half as far apart.
+        fine = _cone(dirs[np.argmax(scores)], 1.5 * spacing, n_refine)
+        fine_scores = _correlations(points, nrm, dlog, tri_pos, fine, 2 * resolution, threads)
+        dirs, scores = np.concatenate([dirs, fine]), np.concatenate([scores, fine_scores])
+        spacing *= 1.5 * np.sqrt(np.pi / n_refine)
+    best = int(np.argmax(scores))
+    return SunSearch(direction=dirs[best], score=float(scores[best]), directions=dirs, scores=scores)
