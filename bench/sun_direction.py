@@ -35,6 +35,8 @@ def main(argv=None):
     p.add_argument("--only", nargs="*", help="fixture names (default: all)")
     p.add_argument("--directions", type=int, default=400)
     p.add_argument("--refine", type=int, default=30)
+    p.add_argument("--max-pairs", type=int, default=0)
+    p.add_argument("--resolution", type=int, default=256)
     p.add_argument("--json", help="write the rows here")
     args = p.parse_args(argv)
     rows = []
@@ -51,6 +53,8 @@ def main(argv=None):
             inputs.mesh.tri_pos,
             n_directions=args.directions,
             n_refine=args.refine,
+            max_pairs=args.max_pairs,
+            resolution=args.resolution,
         )
         seconds = time.perf_counter() - t
         true = record.get("lighting", {}).get("direction_to_sun")

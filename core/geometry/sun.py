@@ -98,6 +98,7 @@ def find_sun(
     n_refine: int = 30,
     rounds: int = 3,
     step: int = 3,
+    max_pairs: int = 0,
     resolution: int = 256,
     threads=None,
 ) -> SunSearch:
@@ -118,6 +119,8 @@ def find_sun(
         cast at twice the resolution (each round's candidates about half as far apart; 0: none).
     step : int
         Pairs are taken on every ``step``-th row and column.
+    max_pairs : int
+        At most this many pairs (every k-th), 0: all.
     resolution : int
         Side of each coarse shadow map.
     threads : int or None
@@ -126,6 +129,14 @@ def find_sun(
     points, nrm, dlog = _pairs(photos, masks, positions, normals, step)
     if dlog.size == 0:
         raise ValueError("sun search: no two neighbouring pixels on the mesh in any photo")
+    if max_pairs and dlog.size > max_pairs:  # every k-th pair: the cost is pairs x directions
+        keep = np.arange(0, dlog.size, -(-dlog.size // max_pairs))
+        n = dlog.size
+        points, nrm, dlog = (
+            np.concatenate([points[keep], points[n + keep]]),
+            np.concatenate([nrm[keep], nrm[n + keep]]),
+            dlog[keep],
+        )
     tri_pos = np.asarray(tri_pos, np.float64)
     dirs = sphere_directions(n_directions)
     scores = _correlations(points, nrm, dlog, tri_pos, dirs, resolution, threads)
