@@ -219,6 +219,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     albedo_lam: spec_property("albedo_lam")
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
+    sun: spec_property("sun")
     mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
@@ -258,6 +259,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             albedo_lam=self.albedo_lam,
             lighting=self.lighting,
             occlusion=self.occlusion,
+            sun=self.sun,
             mask_clipped=self.mask_clipped,
             mu=self.mu,
             max_iter=self.max_iter,

@@ -32,6 +32,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     albedo_lam: spec_property("albedo_lam", clamp=True)
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
+    sun: spec_property("sun")
     mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
@@ -52,6 +53,7 @@ _SAME = (
     "albedo_lam",
     "lighting",
     "occlusion",
+    "sun",
     "mask_clipped",
     "mu",
     "max_iter",
@@ -105,6 +107,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         sub.prop(s, "albedo_lam")
         sub.prop(s, "lighting")
         sub.prop(s, "occlusion")
+        sub.prop(s, "sun")
         sub.prop(s, "mask_clipped")
         if s.method == "image":
             sub.prop(s, "mu")

@@ -240,7 +240,15 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
 
 def _lighting_outputs(prepared, computed, files):
     names = [v.name for v in prepared.inputs.views]
-    return _outputs.lighting_outputs(names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method)
+    sun = computed.info.get("sun") or {}
+    return _outputs.lighting_outputs(
+        names,
+        files,
+        computed.sigma,
+        computed.albedo.shape[2],
+        prepared.options.method,
+        sun.get("direction") if sun.get("used") else None,
+    )
 
 
 def _report_json(prepared, computed, files, times):
@@ -258,6 +266,7 @@ def _report_json(prepared, computed, files, times):
             "albedo_lambda": opt.albedo_lam,
             "lighting": computed.info.get("lighting_mode", opt.lighting),
             "occlusion": opt.occlusion,
+            "sun": computed.info.get("sun", {"used": False}) if opt.sun else None,
             "mask_clipped": opt.mask_clipped,
             "mu": opt.mu,
             "max_iter": opt.max_iter,

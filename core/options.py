@@ -243,6 +243,15 @@ SPEC = (
         flag="--occlusion",
     ),
     Option(
+        "sun",
+        "bool",
+        False,
+        "Sun shadows",
+        "For photos in direct sunlight: find the sun's direction from the shadows in the photos and take the "
+        "shadows it casts out of the albedo (one lighting for all photos, times a gain per photo)",
+        flag="--sun",
+    ),
+    Option(
         "mask_clipped",
         "bool",
         False,
@@ -410,6 +419,7 @@ RUN_FIELDS = (
     "albedo_lam",
     "lighting",
     "occlusion",
+    "sun",
     "mask_clipped",
     "mu",
     "max_iter",

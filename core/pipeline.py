@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,7 +49,7 @@ class Computed:
     albedo: np.ndarray  # (N, N, C) filled texture, row 0 at the top
     seen: np.ndarray  # (N, N) bool
     views: list  # per view (H, W, C) reflectance
-    sigma: np.ndarray | None  # (m, C, 9) lighting, None for "project"
+    sigma: np.ndarray | None  # (m, C, 9) lighting (10 with the sun term: info["sun"]), None for "project"
     energy: list
     iterations: int
     info: dict = field(default_factory=dict)
@@ -125,16 +125,67 @@ def _lighting_stage(problem, params, progress, cancel):
     return result
 
 
-def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, cancel):
+#: The sun search's settings (core.geometry.sun.find_sun): 200 candidates on 128² shadow maps, at most 20 000
+#: pairs of pixels; 1-4 s on the fixtures, within 1-7 degrees where the sun casts shadows (docs/measurements.md).
+SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
+
+
+def _with_sun(problem, inputs, bakes, lighting, opt, progress):
+    """The problem with a sun term as its transfer's last column, found from the photos (option ``sun``).
+
+    Returns the problem, the :class:`core.geometry.sun.SunLight` (None when not used), a summary for the report
+    and the lighting model: the sun is one world light, so the coupled model becomes the shared one (with a
+    coefficient per view the sun trades with the albedo; docs/measurements.md), and a light that moves
+    between the photos (``per_view``) gets no sun.
+    """
+    from .geometry.sun import SunLight, find_sun
+    from .solve.sh import sh_basis
+
+    if lighting == "per_view":
+        progress(0.0, "sun shadows: off, the light changes between the photos")
+        return problem, None, {"used": False, "reason": "the light changes between the photos"}, lighting
+    progress(0.0, "finding the sun")
+    t0 = time.perf_counter()
+    found = find_sun(
+        problem.images,
+        problem.masks,
+        [b.position for b in bakes],
+        [b.normal for b in bakes],
+        inputs.mesh.tri_pos,
+        threads=opt.threads,
+        **SUN_SEARCH,
+    )
+    sun = SunLight(found.direction, inputs.mesh.tri_pos)
+    transfer = []
+    for i, (b, m) in enumerate(zip(bakes, problem.masks)):
+        t = problem.transfer[i] if problem.transfer is not None else None
+        if t is None:  # without occlusion: the paper's nu
+            t = np.zeros(m.shape + (9,), np.float32)
+            t[m] = sh_basis(b.normal[m])
+        column = np.zeros(m.shape + (1,), np.float32)
+        column[m, 0] = sun.term(b.position[m], b.normal[m])
+        transfer.append(np.concatenate([t, column], axis=2))
+    info = {
+        "used": True,
+        "direction": [float(x) for x in found.direction],
+        "correlation": found.score,
+        "seconds": time.perf_counter() - t0,
+    }
+    progress(0.0, f"sun towards ({', '.join(f'{x:.2f}' for x in found.direction)}), found in {info['seconds']:.0f} s")
+    return replace(problem, transfer=transfer), sun, info, "shared" if lighting == "coupled" else lighting
+
+
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
     """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
     from .texture.detail import agreement, detail_albedo, shading_floors
 
     report = stage_progress(progress, "detail", DETAIL_STAGES)
     report(0.0, "lighting at the working resolution")
-    normals, uvs = [b.normal for b in bakes], [b.uv for b in bakes]
-    floor = shading_floors(sigma, normals, uvs, masks, cells)
+    normals, uvs, positions = [b.normal for b in bakes], [b.uv for b in bakes], [b.position for b in bakes]
+    floor = shading_floors(sigma, normals, uvs, masks, cells, sun, positions)
     weights = [b.view_weight for b in bakes]
-    agree = agreement([v.photo for v in inputs.views], masks, uvs, normals, sigma, weights, floor, cells)
+    photos = [v.photo for v in inputs.views]
+    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions)
     views = inputs.views
 
     def load(i):
@@ -152,6 +203,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, opt, progress, c
         floor,
         weights=agree,
         cells=cells,
+        sun=sun,
         use_clipped=bool(opt.mask_clipped),
         progress=report,
         cancel=cancel,
@@ -213,7 +265,7 @@ def compute(
             [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
         )
         check_cancel(cancel)
-    transfer = cells = None
+    transfer = cells = sun = sun_info = None
     if opt.occlusion and opt.method != "project":
         from .geometry.transfer import occlusion_grid, transfer_maps
 
@@ -256,6 +308,9 @@ def compute(
                 solve_progress(0.0, describe_lambda(lam, variation, auto=True))
             if lighting == "auto":
                 lighting = choose_lighting(variation)
+        if opt.sun:
+            problem, sun, sun_info, lighting = _with_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+            check_cancel(cancel)
         params = SolverParams(
             **dict(
                 opt.solver or {},
@@ -297,7 +352,7 @@ def compute(
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(
-            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, opt, progress, cancel
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)
@@ -321,5 +376,6 @@ def compute(
             occlusion=bool(opt.occlusion),
             occlusion_seconds=occlusion_s,
             detail=detail,
+            **({} if sun_info is None else {"sun": sun_info}),
         ),
     )

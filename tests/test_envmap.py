@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from core.io.envmap import (
+    add_sun,
     envmap_image,
     equirect_directions,
     equirect_uv,
@@ -92,3 +93,17 @@ def test_world_lighting_is_the_views_mean():
     gains = np.array([1.0, 0.5, 1.5])[:, None, None]
     views = gains * SIGMA[None]
     np.testing.assert_allclose(world_lighting(views), SIGMA)  # mean gain 1
+
+
+def test_a_sun_disc_lights_a_lambertian_albedo_to_its_strength():
+    """A surface facing the sun gets the sky's shading plus the sun's strength, by quadrature over the image."""
+    sun, strength = unit((0.3, -0.5, 0.8)), np.array([2.0, 1.5, 1.0])
+    sky = envmap_image(radiance_sh(SIGMA)).astype(np.float64)
+    img = add_sun(sky, sun, strength).astype(np.float64)
+    dirs, omega = equirect_directions(256, 128)
+    irradiance = np.einsum("hw,hw,hwc->c", np.maximum(dirs @ sun, 0.0), omega, img - sky)
+    # Within the disc's 2.5 degrees the cosine is at least 0.999.
+    np.testing.assert_allclose(irradiance / np.pi, strength, rtol=2e-3)
+    # Nothing else changes, and a negative strength adds nothing.
+    assert np.count_nonzero((img != sky).any(axis=2)) < 40
+    np.testing.assert_array_equal(add_sun(sky, sun, -strength), sky.astype(np.float32))

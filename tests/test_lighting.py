@@ -182,3 +182,27 @@ def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixel
     assert direct.info["coarse_start"] is None
     # Measured 0.044 and 0.066.
     assert error(half) < 0.8 * error(direct), (error(half), error(direct))
+
+
+def _with_sun_column(problem, scene, strength):
+    """The problem with a sun-like last transfer column ``max(0, n . w)``, its photos lit by it at ``strength``."""
+    from core.solve.sh import sh_basis
+
+    w = np.array([0.5, -0.3, 0.8]) / np.linalg.norm([0.5, -0.3, 0.8])
+    images, transfer = [], []
+    for img, m, n, rho in zip(problem.images, problem.masks, problem.normals, scene.albedo_views):
+        col = np.where(m, np.maximum(n @ w, 0.0), 0.0).astype(np.float32)
+        lit = img + strength * np.where(m[..., None], np.nan_to_num(rho), 0.0) * col[..., None]
+        images.append(np.maximum(lit, 0.0).astype(np.float32))
+        transfer.append(np.concatenate([sh_basis(n), col[..., None]], axis=2))
+    p = problem
+    return Problem(images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight, transfer=transfer)
+
+
+def test_a_sun_column_is_never_given_a_negative_sun(exposed):
+    # Photos darker where the column is large: the best fit wants a negative sun, which no light can be.
+    scene, problem, _ = exposed
+    q = _with_sun_column(problem, scene, -0.3)
+    r = solve(q, SolverParams(lam=2.0, lighting="shared", levels=2, max_iter=8, min_iter=8))
+    assert r.sigma.shape == (6, 3, 10) and np.all(r.sigma[..., 9] >= 0)
+    assert np.all(np.diff(r.energy) <= 0)

@@ -96,6 +96,16 @@ def test_lighting_json_schema():
         lighting_json(["a", "b"], ["views/a.exr", "views/b.exr"], np.zeros((1, 3, 9)))
 
 
+def test_lighting_json_with_the_sun():
+    sigma = np.arange(60.0).reshape(2, 3, 10)
+    light = lighting_json(["a", "b"], ["views/a.exr", "views/b.exr"], sigma, sun=[0.0, 0.0, 2.0])
+    np.testing.assert_allclose(light["world"]["sh"], sigma[..., :9].mean(axis=0))
+    assert light["world"]["sun"] == {"direction": [0.0, 0.0, 1.0], "strength": [24.0, 34.0, 44.0]}
+    assert light["views"][0]["sh"] == sigma[0, :, :9].tolist() and light["views"][1]["sun_strength"] == [39, 49, 59]
+    with pytest.raises(ValueError, match=r"expected \(2, C, 10\)"):
+        lighting_json(["a", "b"], ["views/a.exr", "views/b.exr"], sigma[..., :9], sun=[0.0, 0.0, 1.0])
+
+
 def test_rgba_packs_grey_nan_and_alpha():
     v = np.array([[1.0, np.nan], [np.inf, 2.0]])
     a = np.array([[True, True], [True, False]])

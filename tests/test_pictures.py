@@ -60,3 +60,14 @@ def test_grid_places_pictures_in_rows():
     assert (g[5:7, 1:6] == BACKGROUND).all() and (g[8:12, 7:10] == BACKGROUND).all()
     with pytest.raises(ValueError):
         grid([])
+
+
+def test_a_sphere_under_a_sun_is_brighter_towards_it():
+
+    sh = np.zeros((1, 10))
+    sh[0, 3], sh[0, 9] = 0.5, 2.0  # an even sky and a sun
+    sun = np.array([0.0, -1.0, 0.0])  # towards the viewer: the disc's centre
+    out = shade_sphere(sh, 33, sun)
+    n, inside = sphere_normals(33)
+    np.testing.assert_allclose(out[inside, 0], 0.5 + 2.0 * np.maximum(n[inside] @ sun, 0.0), rtol=1e-6)
+    assert abs(out[16, 16, 0] - 2.5) < 0.01

@@ -60,3 +60,10 @@ def test_correspondence_indices_out_of_range():
     ]:
         with pytest.raises(ValueError, match=match):
             Problem(imgs, masks, nrms, correspondences=corr)
+
+
+def test_a_transfer_of_order_2_and_a_sun_column_is_accepted_and_other_widths_are_not():
+    imgs, masks, nrms = _views()
+    assert Problem(imgs, masks, nrms, transfer=[np.zeros((6, 7, 10), np.float32)] * 2).n_views == 2
+    with pytest.raises(ValueError, match="10, 16 or 25"):
+        Problem(imgs, masks, nrms, transfer=[np.zeros((6, 7, 11), np.float32)] * 2)

@@ -52,20 +52,27 @@ def sphere_normals(size: int):
     return n, inside
 
 
-def shade_sphere(sh, size: int = 96) -> np.ndarray:
+def shade_sphere(sh, size: int = 96, sun=None) -> np.ndarray:
     """Linear shading ``sigma . nu(n)`` of the front-facing sphere, ``(size, size, C)``, NaN outside.
 
-    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.solve.sh`.
+    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.solve.sh`; with ``sun`` (the direction
+    towards it) ``(C, 10)``, the last coefficient the sun's, shading ``max(0, n . sun)`` (a sphere casts
+    no shadow on itself).
     """
     s = np.atleast_2d(np.asarray(sh, dtype=np.float64))
     n, inside = sphere_normals(size)
+    t = sh_basis(n[inside], dtype=np.float64)
+    if sun is not None:
+        w = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+        t = np.concatenate([t, np.maximum(n[inside] @ w, 0.0)[:, None]], axis=1)
     out = np.full((size, size, s.shape[0]), np.nan)
-    out[inside] = sh_basis(n[inside], dtype=np.float64) @ s.T
+    out[inside] = t @ s.T
     return out
 
 
-def lighting_spheres(sigmas, size=96, white=None) -> np.ndarray:
-    """One shaded sphere per view (``sigmas`` is ``(m, C, 9)``), all on one exposure.
+def lighting_spheres(sigmas, size=96, white=None, sun=None) -> np.ndarray:
+    """One shaded sphere per view (``sigmas`` is ``(m, C, 9)``, or 10 with ``sun``: :func:`shade_sphere`), all on
+    one exposure.
 
     ``white`` (default: 1.2 x the 99th percentile of all the shading shown) maps to
     full brightness, so the views' lights keep their relative strengths.
@@ -74,7 +81,7 @@ def lighting_spheres(sigmas, size=96, white=None) -> np.ndarray:
     -------
     (m, size, size, 3) uint8 sRGB, :data:`BACKGROUND` outside the discs
     """
-    shades = [shade_sphere(s, size) for s in np.asarray(sigmas, dtype=np.float64)]
+    shades = [shade_sphere(s, size, sun) for s in np.asarray(sigmas, dtype=np.float64)]
     if white is None:
         vals = np.concatenate([s[np.isfinite(s)] for s in shades]) if shades else np.zeros(0)
         p99 = float(np.percentile(vals, 99)) if vals.size else 0.0

@@ -27,9 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .transfer import sphere_directions, visibility
+from .transfer import ShadowMap, sphere_directions, visibility
 
-__all__ = ["SunSearch", "find_sun"]
+__all__ = ["SunSearch", "find_sun", "SunLight", "SUN_MAP_RESOLUTION"]
+
+#: Side of the shadow map of the sun term: fine enough that its shadows' edges fall within a pixel or two of the
+#: working resolution's photos.
+SUN_MAP_RESOLUTION = 1024
 
 
 @dataclass
@@ -149,3 +153,22 @@ def find_sun(
         spacing *= 1.5 * np.sqrt(np.pi / n_refine)
     best = int(np.argmax(scores))
     return SunSearch(direction=dirs[best], score=float(scores[best]), directions=dirs, scores=scores)
+
+
+class SunLight:
+    """The sun term of the shading, ``V(x, w) max(0, n . w)``, for one direction ``w`` over one mesh.
+
+    The shading is ``sigma . T(x)`` with this term as the last column of the
+    transfer T (:class:`core.solve.problem.Problem`), so its coefficient is the
+    sun's strength in the units of the shading.
+    """
+
+    def __init__(self, direction, tri_pos, resolution: int = SUN_MAP_RESOLUTION):
+        self.shadow = ShadowMap(direction, tri_pos, resolution)
+        self.direction = self.shadow.direction
+
+    def term(self, points, normals) -> np.ndarray:
+        """``(P,)`` float32 at surface points and their unit normals (world space)."""
+        nrm = np.asarray(normals, np.float64)
+        lit = np.maximum(nrm @ self.direction, 0.0)
+        return (self.shadow.open(points, nrm) * lit).astype(np.float32)

@@ -42,6 +42,7 @@ __all__ = [
     "sphere_directions",
     "open_factor",
     "visibility",
+    "ShadowMap",
     "occlusion_transfer",
     "OcclusionGrid",
     "occlusion_grid",
@@ -91,6 +92,53 @@ def _shadow_camera(direction, centre, radius, resolution):
     return Camera(K=K, R=R, t=-R @ C, width=resolution, height=resolution), 2.04 * radius / resolution
 
 
+def _bounding_sphere(tri_pos):
+    corners = tri_pos.reshape(-1, 3)
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    return centre, float(np.linalg.norm(corners - centre, axis=1).max()) or 1.0
+
+
+class ShadowMap:
+    """One depth map of the mesh seen along a direction, to tell which points see out along it.
+
+    Parameters
+    ----------
+    direction : (3,) array
+        Towards the light.
+    tri_pos : (T, 3, 3) array
+        The mesh's triangles (world space): the occluders.
+    resolution : int
+        Side of the depth map.
+    lift, bias : float
+        In map pixels: how far each point is moved along its normal before
+        the test, and the depth tolerance, so that a point never shadows
+        itself. Occluders nearer than about ``lift`` are missed.
+    sphere : (centre, radius), optional
+        The mesh's bounding sphere, if already known.
+    """
+
+    def __init__(self, direction, tri_pos, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, sphere=None):
+        tri_pos = np.asarray(tri_pos, np.float64)
+        centre, radius = _bounding_sphere(tri_pos) if sphere is None else sphere
+        self.direction = np.asarray(direction, np.float64) / np.linalg.norm(direction)
+        self.camera, self.pixel = _shadow_camera(self.direction, centre, radius, resolution)
+        self.depth = raycast(self.camera, tri_pos).depth.ravel()
+        self.resolution, self.lift, self.bias = resolution, lift, bias
+
+    def open(self, points, normals) -> np.ndarray:
+        """``(P,)`` bool: the points (lifted along their unit normals) that the map sees no geometry in front of."""
+        # Lifted off the surface along its normal by `lift` map pixels, a point is in front of its own
+        # surface by lift / cos(angle) at its map pixel, more than the surface's depth varies across
+        # half a pixel (tan(angle) / 2): no self-shadowing at any angle, with a constant depth bias.
+        pts = np.asarray(points, np.float64) + (self.lift * self.pixel) * np.asarray(normals, np.float64)
+        xy, z = self.camera.project(pts)
+        n = self.resolution
+        col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, n - 1)
+        row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, n - 1)
+        return self.depth[row * n + col] >= z - self.bias * self.pixel
+
+
 def visibility(
     points, normals, tri_pos, directions, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, threads=None
 ):
@@ -104,12 +152,8 @@ def visibility(
         The mesh's triangles (world space): the occluders.
     directions : (K, 3) array
         Unit directions from the points towards the light.
-    resolution : int
-        Side of each direction's depth map.
-    lift, bias : float
-        In map pixels: how far each point is moved along its normal before
-        the test, and the depth tolerance, so that a point never shadows
-        itself. Occluders nearer than about ``lift`` are missed.
+    resolution, lift, bias : int, float, float
+        Of each direction's :class:`ShadowMap`.
     threads : int or None
         Directions cast at once (None: every available core).
 
@@ -123,21 +167,10 @@ def visibility(
     tri_pos = np.asarray(tri_pos, np.float64)
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
-    corners = tri_pos.reshape(-1, 3)
-    lo, hi = corners.min(axis=0), corners.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    radius = float(np.linalg.norm(corners - centre, axis=1).max()) or 1.0
+    sphere = _bounding_sphere(tri_pos)
 
     def open_towards(w):
-        cam, pix = _shadow_camera(w, centre, radius, resolution)
-        depth = raycast(cam, tri_pos).depth.ravel()
-        # Lifted off the surface along its normal by `lift` map pixels, a point is in front of its own
-        # surface by lift / cos(angle) at its map pixel, more than the surface's depth varies across
-        # half a pixel (tan(angle) / 2): no self-shadowing at any angle, with a constant depth bias.
-        xy, z = cam.project(pts + (lift * pix) * nrm)
-        col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, resolution - 1)
-        row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, resolution - 1)
-        return depth[row * resolution + col] >= z - bias * pix
+        return ShadowMap(w, tri_pos, resolution, lift, bias, sphere).open(pts, nrm)
 
     out = np.ones((pts.shape[0], len(directions)), dtype=bool)
     for k, col in enumerate(thread_map(open_towards, np.asarray(directions, np.float64), threads)):

@@ -33,8 +33,13 @@ __all__ = [
     "radiance_sh",
     "world_lighting",
     "envmap_image",
+    "add_sun",
     "project_envmap",
 ]
+
+#: Angular radius of the sun disc :func:`add_sun` draws (the real sun's is 0.27 degrees; a disc a few
+#: pixels wide keeps its shadows about as sharp as the solve's one shadow map).
+SUN_RADIUS_DEG = 2.5
 
 #: (width, height) of the written environment image; ample for 9 coefficients.
 ENVMAP_SIZE = (256, 128)
@@ -113,6 +118,36 @@ def envmap_image(radiance, size=ENVMAP_SIZE) -> np.ndarray:
     if img.shape[2] == 1:
         img = np.repeat(img, 3, axis=2)
     return np.maximum(img, 0.0).astype(np.float32)
+
+
+def add_sun(image, direction, strength) -> np.ndarray:
+    """The image with a sun disc along ``direction`` whose light gives the shading ``strength * max(0, n . w)``.
+
+    A distant light of radiance L over the solid angle W gives the irradiance
+    ``L W max(0, n . w)``, which a Lambertian albedo rho sends back as
+    ``rho L W / pi``: so the disc's radiance is ``pi strength / W``, with W
+    the disc's pixels' own solid angle (:data:`SUN_RADIUS_DEG`).
+
+    Parameters
+    ----------
+    image : (H, W, 3) array
+        An equirectangular image (:func:`envmap_image`).
+    direction : (3,) array
+        Towards the sun, world space.
+    strength : (C,) array
+        The sun's coefficient per channel (C = 1 or 3), in the units of the shading.
+    """
+    out = np.array(image, dtype=np.float32)
+    h, w = out.shape[:2]
+    dirs, omega = equirect_directions(w, h)
+    d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
+    cos = dirs @ d
+    disc = cos >= np.cos(np.radians(SUN_RADIUS_DEG))
+    if not disc.any():  # narrower than a pixel: the nearest one
+        disc = cos == cos.max()
+    s = np.broadcast_to(np.maximum(np.asarray(strength, np.float64), 0.0), (3,))
+    out[disc] += (np.pi * s / float(omega[disc].sum())).astype(np.float32)
+    return out
 
 
 def project_envmap(image) -> np.ndarray:

@@ -29,10 +29,16 @@ Both front ends (``python -m core solve`` and the Blender add-on) write through
     environment's radiance ``sum_k radiance_sh[c][k] * basis_k(w)`` coming
     from the unit world direction w, which lights a Lambertian albedo to that
     shading (:func:`core.io.envmap.radiance_sh`).
+
+    With the sun term (the option ``sun``), ``world.sun`` is
+    ``{"direction": [x, y, z] towards the sun, "strength": [per channel]}`` and
+    each view has ``"sun_strength"``: where a point sees the sun, its shading
+    gains ``strength * max(0, n . direction)``.
 ``lighting.exr``
     ``world.radiance_sh`` as an equirectangular RGB float32 image in
     Blender's world convention, clamped at 0
-    (:func:`core.io.envmap.envmap_image`); not written when no lighting was
+    (:func:`core.io.envmap.envmap_image`), plus the sun as a small disc
+    (:func:`core.io.envmap.add_sun`); not written when no lighting was
     estimated.
 ``report.json``
     What the run did (each front end has its own keys), plus ``"files"``: the
@@ -77,7 +83,7 @@ import numpy as np
 
 from ..errors import Cancelled, DelightError
 from ..solve.sh import SH_BASIS_NAMES
-from .envmap import envmap_image, radiance_sh, world_lighting
+from .envmap import add_sun, envmap_image, radiance_sh, world_lighting
 from .exr import write_exr
 from .jsonio import json_value
 from .names import unique_names
@@ -127,7 +133,7 @@ def channel_names(n_channels: int) -> list[str]:
     raise ValueError(f"{n_channels} channels: expected 1 (grey) or 3 (RGB)")
 
 
-def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None = None) -> dict:
+def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None = None, sun=None) -> dict:
     """The contents of ``lighting.json`` (schema in the module docstring).
 
     Parameters
@@ -140,12 +146,19 @@ def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None =
         C, used when ``sigma`` is None.
     method : str, optional
         How the result was computed (``"texture"``, ``"image"``, ``"project"``).
+    sun : (3,) array, optional
+        The direction towards the sun when ``sigma`` has a tenth coefficient, the sun term's
+        (:class:`core.geometry.sun.SunLight`): written as ``"sun"``, world and per view.
     """
+    sun_strength = None
     if sigma is not None:
         sigma = np.asarray(sigma, dtype=np.float64)
-        if sigma.shape[0] != len(names) or sigma.shape[2:] != (9,):
-            raise ValueError(f"sigma has shape {sigma.shape}, expected ({len(names)}, C, 9)")
+        k = 10 if sun is not None else 9
+        if sigma.shape[0] != len(names) or sigma.shape[2:] != (k,):
+            raise ValueError(f"sigma has shape {sigma.shape}, expected ({len(names)}, C, {k})")
         n_channels = sigma.shape[1]
+        if sun is not None:
+            sigma, sun_strength = sigma[..., :9], sigma[..., 9]
     out = {"sh_basis": list(SH_BASIS_NAMES), "channels": channel_names(n_channels), "normals": NORMALS}
     if method is not None:
         out["method"] = method
@@ -153,10 +166,16 @@ def lighting_json(names, files, sigma, n_channels: int = 3, method: str | None =
     out["world"] = (
         None if world is None else {"file": ENVMAP, "sh": world.tolist(), "radiance_sh": radiance_sh(world).tolist()}
     )
+    if sun_strength is not None:
+        d = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+        out["world"]["sun"] = {"direction": d.tolist(), "strength": sun_strength.mean(axis=0).tolist()}
     out["views"] = [
         {"name": str(name), "file": f, "sh": None if sigma is None else sigma[i].tolist()}
         for i, (name, f) in enumerate(zip(names, files))
     ]
+    if sun_strength is not None:
+        for view, strength in zip(out["views"], sun_strength):
+            view["sun_strength"] = strength.tolist()
     return out
 
 
@@ -165,15 +184,19 @@ def lighting_files(estimated: bool = True) -> list[str]:
     return [LIGHTING, ENVMAP] if estimated else [LIGHTING]
 
 
-def lighting_outputs(names, files, sigma, n_channels: int = 3, method: str | None = None) -> dict:
+def lighting_outputs(names, files, sigma, n_channels: int = 3, method: str | None = None, sun=None) -> dict:
     """The lighting's files by name (:func:`lighting_files`) -> contents, for :func:`write_outputs`.
 
     ``lighting.json`` (:func:`lighting_json`, same parameters) and, unless
-    ``sigma`` is None, the world lighting as an environment image.
+    ``sigma`` is None, the world lighting as an environment image, with the sun as a disc
+    (:func:`core.io.envmap.add_sun`) when there is one.
     """
-    out = {LIGHTING: lighting_json(names, files, sigma, n_channels, method)}
+    out = {LIGHTING: lighting_json(names, files, sigma, n_channels, method, sun)}
     if sigma is not None:
-        out[ENVMAP] = envmap_image(radiance_sh(world_lighting(sigma)))
+        world = world_lighting(sigma)
+        out[ENVMAP] = envmap_image(radiance_sh(world[:, :9]))
+        if sun is not None:
+            out[ENVMAP] = add_sun(out[ENVMAP], sun, world[:, 9])
     return out
 
 

@@ -25,7 +25,10 @@ import numpy as np
 from ..geometry.correspondences import Correspondences
 from ..geometry.texels import TextureLayout
 
-__all__ = ["Problem"]
+__all__ = ["Problem", "SUN_COLUMNS"]
+
+#: Width of a transfer with a sun term: order 2's 9 SH coefficients, then the sun's (Problem.transfer).
+SUN_COLUMNS = 10
 
 
 def _fail(msg):
@@ -59,7 +62,9 @@ class Problem:
     transfer : list of (H, W, K) arrays, optional
         Per pixel, the SH transfer that replaces ``nu(normal)`` in the shading
         ``sigma . nu`` (occlusion-aware, :mod:`core.geometry.transfer`); K is
-        9 (the paper's order 2), 16 or 25 (orders 3 and 4).
+        9 (the paper's order 2), 16 or 25 (orders 3 and 4), or 10: order 2
+        and a sun term (:class:`core.geometry.sun.SunLight`) as the last
+        column, whose coefficient the solver keeps >= 0.
         Default: the paper's ``nu`` of the normals.
     """
 
@@ -145,12 +150,12 @@ class Problem:
             if (
                 t.shape[:2] != mask.shape
                 or t.ndim != 3
-                or t.shape[2] not in (9, 16, 25)
+                or t.shape[2] not in (9, SUN_COLUMNS, 16, 25)
                 or t.shape[2] != self.transfer[0].shape[2]
             ):
                 _fail(
                     f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
-                    "(or 16 or 25 coefficients, the same in every view)"
+                    "(or 10, 16 or 25 coefficients, the same in every view)"
                 )
             if not np.isfinite(t[mask]).all():
                 _fail(f"view {i} ({self.names[i]}): transfer inside the mask is NaN or infinite")

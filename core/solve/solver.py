@@ -55,7 +55,7 @@ from .cg import pcg
 from .discretization import Discretization, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
-from .problem import Problem, TextureLayout
+from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import diffuse, unpack_products
 from .spmv import matvec_into
@@ -466,6 +466,9 @@ class _Channel:
             sigma, world = self.coupling.step(Ms, bs, self.sigma)
         else:
             sigma = self._per_view_sigma(Ms, bs)
+        if sigma.shape[1] == SUN_COLUMNS:  # the last column is a sun term (Problem.transfer): no negative sun
+            sigma = np.array(sigma)
+            sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
         shade = _shading(d, sigma, self.ft)
         e = self.energy(obs_shade=shade[d.obs_pixel], sigma=sigma, world=world)
         if e <= self.e:

@@ -53,7 +53,7 @@ _LEAST_AGREEMENT = 1e-3
 _BAND_PIXELS = 1_000_000
 
 
-def shading(normal, uv, sigma_view, cells=None, floor=None) -> np.ndarray:
+def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=None) -> np.ndarray:
     """The shading ``sigma_v . T`` of pixels, ``(P, C)`` float32, floored to ``floor`` (per channel) if given.
 
     Parameters
@@ -65,16 +65,26 @@ def shading(normal, uv, sigma_view, cells=None, floor=None) -> np.ndarray:
     cells : core.geometry.transfer.OcclusionGrid, optional
         The occlusion; without it T is ``nu(n)``, the paper's model.
     floor : (C,) array, optional
+    sun : core.geometry.sun.SunLight, optional
+        A sun term, the last of the lighting's coefficients; ``position`` (P, 3) the pixels' world points.
     """
     t = cells.transfer(uv, normal) if cells is not None else sh_basis(normal)
+    if sun is not None:
+        t = np.concatenate([t, sun.term(position, normal)[:, None]], axis=1)
     s = t @ np.asarray(sigma_view, np.float32).T
     return s if floor is None else np.maximum(s, np.asarray(floor, np.float32))
 
 
-def shading_floors(sigma, normals, uvs, masks, cells=None) -> np.ndarray:
-    """Per channel, the least shading kept (:func:`core.solve.lighting.shading_floor` over every view's pixels)."""
+def shading_floors(sigma, normals, uvs, masks, cells=None, sun=None, positions=None) -> np.ndarray:
+    """Per channel, the least shading kept (:func:`core.solve.lighting.shading_floor` over every view's pixels).
+
+    ``sun`` and the views' world ``positions``: as :func:`shading`.
+    """
     shades = np.concatenate(
-        [shading(n[m], uv[m], sigma[v], cells) for v, (n, uv, m) in enumerate(zip(normals, uvs, masks))]
+        [
+            shading(n[m], uv[m], sigma[v], cells, sun=sun, position=None if sun is None else positions[v][m])
+            for v, (n, uv, m) in enumerate(zip(normals, uvs, masks))
+        ]
     )
     return np.array([shading_floor(shades[:, c].astype(np.float64)) for c in range(shades.shape[1])], np.float32)
 
@@ -103,7 +113,7 @@ def _reference_size(masks, uvs, n) -> int:
     return size
 
 
-def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None) -> list:
+def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None) -> list:
     """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
 
     Each pixel's own albedo (its value over its floored shading) is compared with the weighted median of all
@@ -119,6 +129,8 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None) ->
     sigma : (m, C, K) array
     floor : (C,) array
     cells : OcclusionGrid, optional
+    sun, positions : SunLight and the views' (H, W, 3) world points, optional
+        As :func:`shading`.
 
     Returns
     -------
@@ -128,7 +140,8 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None) ->
     own = []
     for v, (photo, m, uv, nrm) in enumerate(zip(photos, masks, uvs, normals)):
         q = np.zeros(photo.shape, np.float32)
-        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor)
+        pos = None if sun is None else positions[v][m]
+        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor, sun, pos)
         own.append(q)
     size = _reference_size(masks, uvs, 2048)
     ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
@@ -197,6 +210,7 @@ def detail_albedo(
     progress=None,
     cancel=None,
     band_pixels: int = _BAND_PIXELS,
+    sun=None,
 ):
     """The albedo texture from the photos at their full resolution, one photo at a time.
 
@@ -227,6 +241,8 @@ def detail_albedo(
     cancel : callable() -> bool, optional
     band_pixels : int
         Pixels per band of the bake.
+    sun : core.geometry.sun.SunLight, optional
+        The sun term, as in the solve (the last of ``sigma``'s coefficients).
 
     Returns
     -------
@@ -268,7 +284,8 @@ def detail_albedo(
             rr, cc = np.nonzero(mask)
             if rr.size:
                 uv = b.uv[rr, cc]
-                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor)
+                pos = None if sun is None else b.position[rr, cc]
+                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos)
                 q = photo[r0 + rr, cc] / a
                 # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
                 # (division_start's): dark pixels, whose quotient carries the most noise, count least.

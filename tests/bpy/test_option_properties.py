@@ -40,6 +40,7 @@ OPERATOR = {
     "albedo_lam": "albedo_lam",
     "lighting": "lighting",
     "occlusion": "occlusion",
+    "sun": "sun",
     "mask_clipped": "mask_clipped",
 }
 
