@@ -45,8 +45,8 @@ def small_sky(tmp_path_factory):
     return os.path.join(str(out), "lambert_sky")
 
 
-def score(fixture_dir, out_dir, **kw):
-    """Run the pipeline in-process on the fixture; return (texture RMSE, views RMSE, texels compared)."""
+def run_fixture(fixture_dir, out_dir, **kw):
+    """Run the pipeline in-process on the fixture at TEX; return (run report, report.json, scene.json, truth)."""
     with open(os.path.join(fixture_dir, "scene.json")) as fh:
         record = json.load(fh)
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"))
@@ -54,10 +54,15 @@ def score(fixture_dir, out_dir, **kw):
         bpy.context.scene,
         pipeline.Options(object_name=record["mesh"]["object"], texture_size=TEX, out_dir=str(out_dir), **kw),
     )
-    gt = read_exr(os.path.join(fixture_dir, "albedo_gt.exr"))[0]
-    tex, n = texture_rmse(rep.albedo_path, gt)
     with open(os.path.join(out_dir, "report.json")) as fh:
         report = json.load(fh)
+    return rep, report, record, read_exr(os.path.join(fixture_dir, "albedo_gt.exr"))[0]
+
+
+def score(fixture_dir, out_dir, **kw):
+    """Run the pipeline in-process on the fixture; return (texture RMSE, views RMSE, texels compared)."""
+    rep, report, record, gt = run_fixture(fixture_dir, out_dir, **kw)
+    tex, n = texture_rmse(rep.albedo_path, gt)
     return np.array(tex), np.array(views_rmse(str(out_dir), report, fixture_dir, record)), n, gt
 
 

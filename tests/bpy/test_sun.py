@@ -14,16 +14,13 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from conftest import needs_fixture_maker  # noqa: E402
-from test_accuracy import make_fixtures  # noqa: E402
+from test_accuracy import TEX, make_fixtures, run_fixture  # noqa: E402
 
 from bench.accuracy import texture_rmse  # noqa: E402
-from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.io.envmap import equirect_directions  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
 
 pytestmark = [pytest.mark.bpy, needs_fixture_maker]
-
-TEX = 128
 
 
 @pytest.fixture(scope="module")
@@ -35,16 +32,7 @@ def small_sun(tmp_path_factory):
 
 
 def run(fixture_dir, out_dir, **kw):
-    with open(os.path.join(fixture_dir, "scene.json")) as fh:
-        record = json.load(fh)
-    bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"))
-    rep = pipeline.run(
-        bpy.context.scene,
-        pipeline.Options(object_name=record["mesh"]["object"], texture_size=TEX, out_dir=str(out_dir), **kw),
-    )
-    gt = read_exr(os.path.join(fixture_dir, "albedo_gt.exr"))[0]
-    with open(os.path.join(out_dir, "report.json")) as fh:
-        report = json.load(fh)
+    rep, report, record, gt = run_fixture(fixture_dir, out_dir, **kw)
     return np.array(texture_rmse(rep.albedo_path, gt)[0]), report, record
 
 
