@@ -245,10 +245,10 @@ SPEC = (
     Option(
         "sun",
         "bool",
-        False,
+        True,
         "Sun shadows",
-        "For photos in direct sunlight: find the sun's direction from the shadows in the photos and take the "
-        "shadows it casts out of the albedo (one lighting for all photos, times a gain per photo)",
+        "Find a sun's direction from the shadows in the photos and take the shadows it casts out of the albedo "
+        "(one sun for all photos; none when the light changes between them)",
         flag="--sun",
     ),
     Option(

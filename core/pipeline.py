@@ -133,17 +133,16 @@ SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
 def _with_sun(problem, inputs, bakes, lighting, opt, progress):
     """The problem with a sun term as its transfer's last column, found from the photos (option ``sun``).
 
-    Returns the problem, the :class:`core.geometry.sun.SunLight` (None when not used), a summary for the report
-    and the lighting model: the sun is one world light, so the coupled model becomes the shared one (with a
-    coefficient per view the sun trades with the albedo; docs/measurements.md), and a light that moves
-    between the photos (``per_view``) gets no sun.
+    Returns the problem, the :class:`core.geometry.sun.SunLight` (None when not used) and a summary for the
+    report. A light that moves between the photos (``lighting`` ``per_view``) gets no sun; under the other
+    models the sun is one world light (:class:`core.solve.lighting.Coupling`, ``shared_lighting_step``).
     """
     from .geometry.sun import SunLight, find_sun
     from .solve.sh import sh_basis
 
     if lighting == "per_view":
         progress(0.0, "sun shadows: off, the light changes between the photos")
-        return problem, None, {"used": False, "reason": "the light changes between the photos"}, lighting
+        return problem, None, {"used": False, "reason": "the light changes between the photos"}
     progress(0.0, "finding the sun")
     t0 = time.perf_counter()
     found = find_sun(
@@ -172,7 +171,7 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
         "seconds": time.perf_counter() - t0,
     }
     progress(0.0, f"sun towards ({', '.join(f'{x:.2f}' for x in found.direction)}), found in {info['seconds']:.0f} s")
-    return replace(problem, transfer=transfer), sun, info, "shared" if lighting == "coupled" else lighting
+    return replace(problem, transfer=transfer), sun, info
 
 
 def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
@@ -309,7 +308,7 @@ def compute(
             if lighting == "auto":
                 lighting = choose_lighting(variation)
         if opt.sun:
-            problem, sun, sun_info, lighting = _with_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+            problem, sun, sun_info = _with_sun(problem, inputs, bakes, lighting, opt, solve_progress)
             check_cancel(cancel)
         params = SolverParams(
             **dict(

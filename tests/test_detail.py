@@ -240,6 +240,6 @@ def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene)
         opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=True, sun=sun)
         out = compute(opt, inputs, [bake_view(v.camera, scene[0]) for v in inputs.views])
         errors[sun] = scaled_rmse(out.albedo, albedo, out.seen)
-    assert out.info["sun"]["used"] and out.sigma.shape[2] == 10 and out.info["lighting_mode"] == "shared"
+    assert out.info["sun"]["used"] and out.sigma.shape[2] == 10 and out.info["lighting_mode"] == "coupled"
     # Measured: 0.075 in each channel both ways (the band is lit by no sun, so the term's share stays small).
     assert np.all(errors[True] < 1.2 * errors[False]), errors

@@ -35,6 +35,7 @@ import numpy as np
 from ..errors import Cancelled
 from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
+from .problem import SUN_COLUMNS
 from .pyramid import supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
@@ -152,6 +153,11 @@ class Coupling:
     (``Ibar`` the mean observed value): the squared difference of the two
     shadings over the view, in the units of the data. ``kappa = 0`` is the
     paper's free lighting per view, ``kappa -> inf`` the shared one.
+
+    With a sun term (a transfer of :data:`core.solve.problem.SUN_COLUMNS`), the
+    sun is not free per view: its coefficient is ``g_v t``, one strength t per
+    channel times each view's gain, kept >= 0. Free per view, it trades with
+    the albedo (docs/measurements.md).
     """
 
     def __init__(self, d, c, kappa, sigma0):
@@ -188,16 +194,27 @@ class Coupling:
         sigma = np.array(sigma_views, dtype=np.float64)
         s, g = self.world
         kG = self.kappa * self.G
-        free = _free(sigma.shape[1])
+        sun = sigma.shape[1] == SUN_COLUMNS
+        free = _free(sigma.shape[1] - sun)
         for _ in range(rounds):
             for v in range(len(sigma)):
                 A = Ms[v] + kG[v]
                 r = bs[v] + kG[v] @ (g[v] * s)
+                if sun:  # the SH part with the sun's coefficient held
+                    r, A = r[:-1] - A[:-1, -1] * sigma[v, -1], A[:-1, :-1]
                 if v == 0:
                     rhs = r[free] - A[free, 3] * sigma[0, 3]
                     sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
                 else:
-                    sigma[v] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+                    sigma[v, : A.shape[0]] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+            if sun:  # one sun for all views, times each view's gain: an exact 1-D minimisation, kept >= 0
+                num = den = 0.0
+                for v in range(len(sigma)):
+                    A = Ms[v] + kG[v]
+                    r = bs[v] + kG[v] @ (g[v] * s)
+                    num += g[v] * (r[-1] - A[-1, :-1] @ sigma[v, :-1])
+                    den += g[v] * g[v] * A[-1, -1]
+                sigma[:, -1] = g * max(num / den, 0.0) if den > 0 else sigma[:, -1]
             s, g = self._fit_world(sigma, s, g)
         return sigma, (s, g)
 
