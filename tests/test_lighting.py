@@ -199,10 +199,11 @@ def _with_sun_column(problem, scene, strength):
     return Problem(images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight, transfer=transfer)
 
 
-def test_a_sun_column_is_never_given_a_negative_sun(exposed):
+@pytest.mark.parametrize("lighting", ["shared", "coupled", "per_view"])
+def test_a_sun_column_is_never_given_a_negative_sun(exposed, lighting):
     # Photos darker where the column is large: the best fit wants a negative sun, which no light can be.
     scene, problem, _ = exposed
     q = _with_sun_column(problem, scene, -0.3)
-    r = solve(q, SolverParams(lam=2.0, lighting="shared", levels=2, max_iter=8, min_iter=8))
+    r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=8, min_iter=8))
     assert r.sigma.shape == (6, 3, 10) and np.all(r.sigma[..., 9] >= 0)
     assert np.all(np.diff(r.energy) <= 0)

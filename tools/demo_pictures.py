@@ -134,9 +134,9 @@ def draw_before_after(path, panels):
     _save(fig, path)
 
 
-def draw_lighting(path, sigmas, names):
-    """One sphere per view, :data:`COLUMNS` to a row, each under its view's name."""
-    spheres = lighting_spheres(sigmas, size=SPHERE)
+def draw_lighting(path, sigmas, names, sun=None):
+    """One sphere per view, :data:`COLUMNS` to a row, each under its view's name (``sun``: its direction)."""
+    spheres = lighting_spheres(sigmas, size=SPHERE, sun=sun)
     cols = min(COLUMNS, len(spheres))
     rows = -(-len(spheres) // cols)
     # At least wide enough for the heading.
@@ -219,9 +219,12 @@ def make_pictures(out_dir, fixture_dir=None, view=None, dest=None) -> list:
     if not views or not report["energy"]:
         raise SystemExit(f"error: {out_dir} has no lighting or energy (method 'project'?)")
     sigmas = np.array([v["sh"] for v in views])  # (views, channels, 9), schema in core.io.outputs
+    sun = (lighting["world"] or {}).get("sun")
+    if sun is not None:  # each view's sun strength as a tenth coefficient
+        sigmas = np.concatenate([sigmas, np.array([v["sun_strength"] for v in views])[..., None]], axis=2)
     paths = [os.path.join(dest, f) for f in FILES]
     draw_before_after(paths[0], before_after_pictures(out_dir, report, fixture_dir, view))
-    draw_lighting(paths[1], sigmas, [v["name"] for v in views])
+    draw_lighting(paths[1], sigmas, [v["name"] for v in views], None if sun is None else sun["direction"])
     draw_convergence(paths[2], energy_levels(report))
     return paths
 
