@@ -309,6 +309,7 @@ def compute(
                 lighting = choose_lighting(variation)
         if opt.sun:
             problem, sun, sun_info = _with_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+            transfer = None  # the problem holds the maps with the sun's column: let the others go
             check_cancel(cancel)
         params = SolverParams(
             **dict(
