@@ -240,14 +240,8 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
 
 def _lighting_outputs(prepared, computed, files):
     names = [v.name for v in prepared.inputs.views]
-    sun = computed.info.get("sun") or {}
     return _outputs.lighting_outputs(
-        names,
-        files,
-        computed.sigma,
-        computed.albedo.shape[2],
-        prepared.options.method,
-        sun.get("direction") if sun.get("used") else None,
+        names, files, computed.sigma, computed.albedo.shape[2], prepared.options.method, computed.sun_direction
     )
 
 

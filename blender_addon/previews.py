@@ -86,9 +86,7 @@ def update(object_name: str, prepared, computed) -> list:
     if computed.sigma is None:
         _remove(names[1])
     else:
-        sun = computed.info.get("sun") or {}
-        direction = sun.get("direction") if sun.get("used") else None
-        spheres = grid(lighting_spheres(computed.sigma, size=64, sun=direction), columns=COLUMNS)
+        spheres = grid(lighting_spheres(computed.sigma, size=64, sun=computed.sun_direction), columns=COLUMNS)
         out.append(_put(names[1], spheres, "Lighting, left to right: " + ", ".join(v.name for v in views)))
     return [img for img in out if img is not None]
 

@@ -54,6 +54,12 @@ class Computed:
     iterations: int
     info: dict = field(default_factory=dict)
 
+    @property
+    def sun_direction(self):
+        """The direction towards the sun when the lighting has the sun's term (``info["sun"]``), else None."""
+        sun = self.info.get("sun") or {}
+        return sun.get("direction") if sun.get("used") else None
+
 
 def _layout(mesh, n):
     return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)

@@ -79,11 +79,7 @@ def _correlations(points, normals, dlog, tri_pos, directions, resolution, thread
 
 def _cone(axis, half_angle, k):
     """``k`` directions spread evenly over the cap of ``half_angle`` radians around ``axis``."""
-    i = np.arange(k) + 0.5
-    z = 1.0 - (1.0 - np.cos(half_angle)) * i / k
-    phi = i * np.pi * (3.0 - np.sqrt(5.0))
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    local = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    local = sphere_directions(k, np.cos(half_angle))
     a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
     helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     x = np.cross(helper, a)

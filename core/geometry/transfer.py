@@ -63,13 +63,14 @@ def open_factor(k: int) -> np.ndarray:
     return A_BAND[b] / _NORM_BAND[b]
 
 
-def sphere_directions(k: int) -> np.ndarray:
+def sphere_directions(k: int, min_z: float = -1.0) -> np.ndarray:
     """``k`` unit directions spread evenly over the sphere (a Fibonacci lattice), ``(k, 3)``.
 
-    Each stands for 4 pi / k sr.
+    Each stands for 4 pi / k sr; with ``min_z`` > -1 they cover the cap ``z >= min_z`` around +Z instead,
+    2 pi (1 - min_z) / k sr each.
     """
     i = np.arange(k) + 0.5
-    z = 1.0 - 2.0 * i / k
+    z = 1.0 - (1.0 - min_z) * i / k
     phi = i * np.pi * (3.0 - np.sqrt(5.0))
     r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)

@@ -197,9 +197,11 @@ class Coupling:
         sun = sigma.shape[1] == SUN_COLUMNS
         free = _free(sigma.shape[1] - sun)
         for _ in range(rounds):
+            # Each view's quadratic in its lighting: data majorant plus the prior towards g_v s.
+            As = Ms + kG
+            rs = [bs[v] + kG[v] @ (g[v] * s) for v in range(len(sigma))]
             for v in range(len(sigma)):
-                A = Ms[v] + kG[v]
-                r = bs[v] + kG[v] @ (g[v] * s)
+                A, r = As[v], rs[v]
                 if sun:  # the SH part with the sun's coefficient held
                     r, A = r[:-1] - A[:-1, -1] * sigma[v, -1], A[:-1, :-1]
                 if v == 0:
@@ -210,10 +212,8 @@ class Coupling:
             if sun:  # one sun for all views, times each view's gain: an exact 1-D minimisation, kept >= 0
                 num = den = 0.0
                 for v in range(len(sigma)):
-                    A = Ms[v] + kG[v]
-                    r = bs[v] + kG[v] @ (g[v] * s)
-                    num += g[v] * (r[-1] - A[-1, :-1] @ sigma[v, :-1])
-                    den += g[v] * g[v] * A[-1, -1]
+                    num += g[v] * (rs[v][-1] - As[v][-1, :-1] @ sigma[v, :-1])
+                    den += g[v] * g[v] * As[v][-1, -1]
                 sigma[:, -1] = g * max(num / den, 0.0) if den > 0 else sigma[:, -1]
             s, g = self._fit_world(sigma, s, g)
         return sigma, (s, g)
