@@ -143,7 +143,7 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
     report. A light that moves between the photos (``lighting`` ``per_view``) gets no sun; under the other
     models the sun is one world light (:class:`core.solve.lighting.Coupling`, ``shared_lighting_step``).
     """
-    from .geometry.sun import SunLight, find_sun
+    from .geometry.sun import SunLight, SunNotFound, find_sun
     from .solve.sh import sh_basis
 
     if lighting == "per_view":
@@ -151,15 +151,19 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
         return problem, None, {"used": False, "reason": "the light changes between the photos"}
     progress(0.0, "finding the sun")
     t0 = time.perf_counter()
-    found = find_sun(
-        problem.images,
-        problem.masks,
-        [b.position for b in bakes],
-        [b.normal for b in bakes],
-        inputs.mesh.tri_pos,
-        threads=opt.threads,
-        **SUN_SEARCH,
-    )
+    try:
+        found = find_sun(
+            problem.images,
+            problem.masks,
+            [b.position for b in bakes],
+            [b.normal for b in bakes],
+            inputs.mesh.tri_pos,
+            threads=opt.threads,
+            **SUN_SEARCH,
+        )
+    except SunNotFound as e:  # too few pixels to tell where it is: solve without it, and say so
+        progress(0.0, f"sun shadows: off, {e}")
+        return problem, None, {"used": False, "reason": str(e)}
     sun = SunLight(found.direction, inputs.mesh.tri_pos)
     transfer = []
     for i, (b, m) in enumerate(zip(bakes, problem.masks)):

@@ -92,3 +92,29 @@ def test_no_pairs_is_a_clear_error(scene):
     empty = [np.zeros_like(m) for m in masks]
     with pytest.raises(ValueError, match="no two neighbouring pixels"):
         find_sun(photos, empty, positions, normals, scene, n_directions=20)
+
+
+def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
+    # A scene whose photos have no two neighbouring pixels on the mesh (a tiny mesh far away): no sun term,
+    # a reason in the report and in the progress, and the problem as it was.
+    from types import SimpleNamespace
+
+    from core.pipeline import _with_sun
+    from core.solve.problem import Problem
+
+    photos, masks, positions, normals = _views(scene, 1.0)
+    rows, cols = np.indices(masks[0].shape)
+    apart = [m & ((rows + cols) % 2 == 0) for m in masks]  # a checkerboard: no neighbour right or below
+    problem = Problem(images=photos, masks=apart, normals=normals)
+    said = []
+    out, sun, info = _with_sun(
+        problem,
+        SimpleNamespace(mesh=SimpleNamespace(tri_pos=scene)),
+        [SimpleNamespace(position=p, normal=n) for p, n in zip(positions, normals)],
+        "coupled",
+        SimpleNamespace(threads=1),
+        lambda frac, msg: said.append(msg),
+    )
+    assert out is problem and sun is None
+    assert info == {"used": False, "reason": "sun search: no two neighbouring pixels on the mesh in any photo"}
+    assert said[-1] == "sun shadows: off, sun search: no two neighbouring pixels on the mesh in any photo"

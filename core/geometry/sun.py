@@ -29,11 +29,15 @@ import numpy as np
 
 from .transfer import ShadowMap, sphere_directions, visibility
 
-__all__ = ["SunSearch", "find_sun", "SunLight", "SUN_MAP_RESOLUTION"]
+__all__ = ["SunSearch", "SunNotFound", "find_sun", "SunLight", "SUN_MAP_RESOLUTION"]
 
 #: Side of the shadow map of the sun term: fine enough that its shadows' edges fall within a pixel or two of the
 #: working resolution's photos.
 SUN_MAP_RESOLUTION = 1024
+
+
+class SunNotFound(ValueError):
+    """The photos hold too little to search for a sun (no two neighbouring pixels on the mesh)."""
 
 
 @dataclass
@@ -128,7 +132,7 @@ def find_sun(
     """
     points, nrm, dlog = _pairs(photos, masks, positions, normals, step)
     if dlog.size == 0:
-        raise ValueError("sun search: no two neighbouring pixels on the mesh in any photo")
+        raise SunNotFound("sun search: no two neighbouring pixels on the mesh in any photo")
     if max_pairs and dlog.size > max_pairs:  # every k-th pair: the cost is pairs x directions
         keep = np.arange(0, dlog.size, -(-dlog.size // max_pairs))
         n = dlog.size
