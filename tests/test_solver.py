@@ -47,7 +47,6 @@ def textured():
         ("texture", "interpolate", False, 1.0),
         ("texture", "splat", False, 1.0),
         ("texture", "nearest", False, 1.0),
-        ("texture", "merged", False, 1.0),
         ("image", "interpolate", False, 1.0),
         ("texture", "interpolate", True, 1.0),
         ("image", "interpolate", True, 1.0),
@@ -120,41 +119,6 @@ def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured)
     chosen = np.zeros(n_pixels)
     chosen[splat.obs_pixel[same]] = splat.obs_weight[same]
     np.testing.assert_allclose(chosen, best, rtol=1e-6)
-
-
-def test_merged_sums_each_views_pixels_per_texel_and_facing(textured):
-    near = texture_domain(textured.problem, data_model="nearest")
-    merged = texture_domain(textured.problem, data_model="merged")
-    assert merged.merged and not near.merged
-    assert np.array_equal(merged.texel_index, near.texel_index)
-    assert merged.obs_pixel.size < near.obs_pixel.size / 2  # several pixels of a view per texel
-    # A group is one view's: the merged observations of a view are its own pixels' sums, texel by texel.
-    for v in range(near.n_views):
-        for d in (near, merged):
-            assert d.pixel_offsets[v + 1] - d.pixel_offsets[v] > 0
-        sums = []
-        for d in (near, merged):
-            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            sel = (d.obs_pixel >= lo) & (d.obs_pixel < hi)
-            w = d.obs_weight[sel].astype(np.float64)
-            unk, pix = d.obs_unknown[sel], d.obs_pixel[sel]
-            per = [np.bincount(unk, weights=w, minlength=d.n_unknowns)]
-            per += [np.bincount(unk, weights=w * d.values[pix, c], minlength=d.n_unknowns) for c in range(3)]
-            per += [np.bincount(unk, weights=w * d.nu[pix, k], minlength=d.n_unknowns) for k in range(9)]
-            sums.append(np.stack(per))
-        np.testing.assert_allclose(sums[1], sums[0], rtol=1e-4, atol=1e-5)
-
-
-def test_the_lighting_ladder_merges_its_coarse_levels_only(varying, monkeypatch):
-    monkeypatch.setattr(pyramid, "MIN_PIXELS", 1000)
-    monkeypatch.setattr(pyramid, "MIN_SIZE", 16)
-    params = SolverParams(lam=0.5, levels=2, coarse_iter=4, max_iter=4, min_iter=4, data_model="nearest")
-    r = solve(varying.problem, params)
-    every = solve(varying.problem, replace(params, coarse_data_model="nearest"))
-    assert r.info["n_observations"] == every.info["n_observations"] == sum(int(m.sum()) for m in varying.problem.masks)
-    assert r.info["coarse"]["info"]["n_observations"] < every.info["coarse"]["info"]["n_observations"] / 2
-    for v, m in zip(r.views, varying.problem.masks):  # the finest level's maps, pixel by pixel
-        assert np.all(np.isfinite(v[m]))
 
 
 def test_plain_alternation_stalls_where_gauss_newton_does_not(textured):

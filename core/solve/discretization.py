@@ -35,12 +35,6 @@ land on the same texel *are* the correspondences. Three data models:
   two-stage solve's lighting stage uses it (``light_data_model``): at 128^2
   the lighting does not need the texel-scale detail the albedo stage does
   (docs/measurements.md).
-* ``"merged"``: as ``"nearest"``, then the pixels of one view that share a
-  texel merged into one observation (their weighted mean value and transfer,
-  their summed weight). Averaging before the robust data term gives up its
-  robustness within a texel, so only the coarse levels of the lighting stage
-  use it, to start the finest level (``coarse_data_model``), where a view has
-  ~100-1000 pixels per texel. Its "pixels" are these groups.
 
 In all, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).
@@ -61,10 +55,7 @@ from .problem import Problem
 from .sh import sh_basis, sh_products
 from .spmv import PairNormal, matvec_into
 
-__all__ = ["DATA_MODELS", "Discretization", "image_domain", "texture_domain"]
-
-#: The texture domain's data models (see the module docstring).
-DATA_MODELS = ("interpolate", "splat", "nearest", "merged")
+__all__ = ["Discretization", "image_domain", "texture_domain"]
 
 
 @dataclass
@@ -91,7 +82,6 @@ class Discretization:
     rho0: np.ndarray  # (n, C) float32 starting reflectance
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
-    merged: bool = False  # "merged": the pixels are groups of the masks' pixels, not the pixels themselves
 
     @property
     def n_views(self) -> int:
@@ -349,16 +339,11 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     """
     if problem.texture is None or problem.uv is None:
         raise ValueError("texture domain: the problem needs uv and a texture layout")
-    if data_model not in DATA_MODELS:
-        raise ValueError(f"texture domain: data_model must be one of {', '.join(DATA_MODELS)}, got {data_model!r}")
+    if data_model not in ("interpolate", "splat", "nearest"):
+        raise ValueError(f"texture domain: data_model must be 'interpolate', 'splat' or 'nearest', got {data_model!r}")
     size = problem.texture.size
     offsets, values, nu = _masked_pixels(problem)
-    tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model in ("nearest", "merged"))
-    if data_model == "merged":
-        normals = np.concatenate([n[m] for n, m in zip(problem.normals, problem.masks)])
-        offsets, values, nu, tex_obs, pix_obs, w_obs = _merged(
-            offsets, values, nu, tex_obs, pix_obs, w_obs, size, _facing(normals)
-        )
+    tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest")
     seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
     texels = np.flatnonzero(seen_count > 0)
     lut = np.full(size * size, -1, dtype=np.intp)
@@ -390,7 +375,6 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         rho0=np.zeros((n, values.shape[1]), np.float32),
         texel_index=texels,
         obs_matrix=obs_matrix,
-        merged=data_model == "merged",
     )
     # Start from the weighted mean of the observations that see each texel.
     wsum = d.scatter(w_obs.astype(np.float64))
@@ -398,38 +382,6 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         [d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum for ch in range(values.shape[1])], axis=1
     ).astype(np.float32)
     return d
-
-
-def _facing(normals):
-    """Which of the 6 axis directions each unit normal is nearest to, ``(P,)`` int8 in [0, 6)."""
-    axis = np.argmax(np.abs(normals), axis=1)
-    return (2 * axis + (np.take_along_axis(normals, axis[:, None], axis=1)[:, 0] > 0)).astype(np.int8)
-
-
-def _merged(offsets, values, nu, tex_obs, pix_obs, w_obs, size, facing):
-    """One observation per (view, texel, facing) of the nearest-texel observations: weighted means, summed weights.
-
-    ``facing`` (:func:`_facing`) keeps the faces of a coarse texel that point different ways (the treads and
-    risers of a stair) apart. Returns the groups as pixels (offsets per view, values, nu) and their
-    observations (texel, group, weight).
-    """
-    view = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
-    key = (view[pix_obs] * np.int64(size * size) + tex_obs) * 6 + facing[pix_obs]
-    keys, group = np.unique(key, return_inverse=True)
-    keys = keys // 6
-    # Weighted sums as one sparse product: groups x pixels, the weights as entries.
-    S = sp.csr_matrix((w_obs, (group, pix_obs)), shape=(keys.size, values.shape[0]))
-    wsum = np.asarray(S.sum(axis=1)).ravel()
-    mean = sp.diags(1.0 / wsum) @ S
-    offsets_g = np.searchsorted(keys // (size * size), np.arange(offsets.size)).astype(np.intp)
-    return (
-        offsets_g,
-        (mean @ values.astype(np.float64)).astype(np.float32),
-        (mean @ nu.astype(np.float64)).astype(np.float32),
-        keys % (size * size),
-        np.arange(keys.size),
-        wsum,
-    )
 
 
 def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):

@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
-from .discretization import DATA_MODELS, Discretization, image_domain, texture_domain
+from .discretization import Discretization, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
@@ -92,7 +92,7 @@ class SolverParams:
     gauss_newton : bool
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
-    data_model : {"interpolate", "splat", "nearest", "merged"}
+    data_model : {"interpolate", "splat", "nearest"}
         Texture domain: how a pixel sees the texels (:mod:`core.solve.discretization`).
     precision : {"float32", "float64"}
         Working precision of rho and the CG.
@@ -138,9 +138,6 @@ class SolverParams:
         Two stages, texture domain: the lighting stage's data model (see
         ``data_model``); "nearest" gives each pixel one observation, of its
         nearest texel, a quarter of the splats' work.
-    coarse_data_model : {"merged", "nearest", ...}
-        Texture domain: the data model of the coarse levels of a ladder whose own is "nearest" (the lighting
-        stage's): "merged", one observation per view and texel, since those levels only start the finest.
     light_edges : float
         Two stages, texture domain: when > 0, the lighting stage is run again
         with its TV rows weighted down across the albedo edges it found
@@ -179,7 +176,6 @@ class SolverParams:
     light_size: int = 128
     light_edges: float = 0.003
     light_data_model: str = "nearest"
-    coarse_data_model: str = "merged"
     albedo_edges: float = 0.002
 
     def resolved(self) -> SolverParams:
@@ -197,9 +193,11 @@ class SolverParams:
             raise ValueError(
                 f"solver: preconditioner must be 'auto', 'jacobi' or 'multigrid', got {self.preconditioner!r}"
             )
-        for name in ("data_model", "light_data_model", "coarse_data_model"):
-            if getattr(self, name) not in DATA_MODELS:
-                raise ValueError(f"solver: {name} must be one of {', '.join(DATA_MODELS)}, got {getattr(self, name)!r}")
+        for name in ("data_model", "light_data_model"):
+            if getattr(self, name) not in ("interpolate", "splat", "nearest"):
+                raise ValueError(
+                    f"solver: {name} must be 'interpolate', 'splat' or 'nearest', got {getattr(self, name)!r}"
+                )
         for name in ("lam", "mu", "delta"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
@@ -577,8 +575,6 @@ def _ladder(problem, params: SolverParams) -> list[_Level]:
     texture = params.domain == "texture"
     cap = params.max_texels_per_pixel if texture else 0.0
     coarse_params = replace(params, max_iter=params.coarse_iter, min_iter=min(params.min_iter, params.coarse_iter))
-    if texture and params.data_model == "nearest":
-        coarse_params = replace(coarse_params, data_model=params.coarse_data_model)
     ladder, label = [], ""
     while True:
         layout = None
@@ -666,7 +662,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
         if below is None
         else {
             "size": None if below.texture is None else int(below.texture.shape[0]),
-            "shapes": [m.shape for m in problem.masks],
+            "shapes": [v.shape[:2] for v in below.views],
             "iterations": below.iterations,
             "energy": below.energy,
             "info": below.info,
@@ -724,11 +720,9 @@ def _rescaled(d: Discretization, channels):
 
 
 def _outputs(problem, d: Discretization, rho: np.ndarray):
-    """Per-view reflectance maps (None for merged pixels), and the texture in the texture domain."""
+    """Per-view reflectance maps, and the texture in the texture domain."""
     C = rho.shape[1]
-    if d.merged:
-        pix_rho = None
-    elif d.domain == "image":
+    if d.domain == "image":
         pix_rho = rho
     else:
         wsum = np.bincount(d.obs_pixel, weights=d.obs_weight, minlength=d.nu.shape[0])
@@ -739,8 +733,8 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
         )
         with np.errstate(invalid="ignore", divide="ignore"):
             pix_rho = pix_rho / wsum[:, None]
-    views = None if pix_rho is None else []
-    for v in range(d.n_views if views is not None else 0):
+    views = []
+    for v in range(d.n_views):
         mask = problem.masks[v]
         out = np.full(mask.shape + (C,), np.nan, dtype=np.float32)
         out[mask] = pix_rho[d.pixel_offsets[v] : d.pixel_offsets[v + 1]]
