@@ -109,6 +109,7 @@ class Discretization:
         self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
         self._pair = None
         self._products = None
+        self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
         self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 
     @property
@@ -185,6 +186,16 @@ class Discretization:
         s[: self.n_tv] *= lam
         s[self.n_tv :] *= mu
         return s
+
+    def row_weights(self, lam: float, mu: float, dtype) -> np.ndarray:
+        """:meth:`row_scale` in ``dtype``, made once and shared, read-only, by the channels' threads."""
+        key = (float(lam), float(mu), np.dtype(dtype).str)
+        with self._lock:
+            if key not in self._row_weights:
+                s = self.row_scale(lam, mu).astype(dtype)
+                s.flags.writeable = False
+                self._row_weights[key] = s
+            return self._row_weights[key]
 
 
 def _sum(A, x):

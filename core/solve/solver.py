@@ -338,8 +338,7 @@ class _Channel:
             from .lighting import Coupling
 
             self.coupling = Coupling(d, c, params.coupling, self.sigma)
-        self.s = d.row_scale(params.lam, params.mu).astype(np.float64)
-        self.s_ft = self.s.astype(self.ft)
+        self.s_ft = d.row_weights(params.lam, params.mu, self.ft)
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
         self._Bx = np.empty(d.B.shape[0], self.ft)
         self._sw = np.empty(d.B.shape[0], self.ft)
@@ -806,7 +805,7 @@ def _joint_system(ch: _Channel, rho: np.ndarray):
     jacobi = A2T @ data
     if d.B.shape[0]:
         B, BT = d.B.astype(np.float64), d.BT.astype(np.float64)
-        sw = ch.s * mm_weight(B @ rho, ch.delta)
+        sw = ch.s_ft.astype(np.float64) * mm_weight(B @ rho, ch.delta)
         g_rho += BT @ (sw * (B @ rho))
         jacobi += d.B2T.astype(np.float64) @ sw
     free = np.ones(9 * m)
