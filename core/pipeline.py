@@ -167,13 +167,9 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
     sun = SunLight(found.direction, inputs.mesh.tri_pos)
     transfer = []
     for i, (b, m) in enumerate(zip(bakes, problem.masks)):
-        t = problem.transfer[i] if problem.transfer is not None else None
-        if t is None:  # without occlusion: the paper's nu
-            t = np.zeros(m.shape + (9,), np.float32)
-            t[m] = sh_basis(b.normal[m])
-        column = np.zeros(m.shape + (1,), np.float32)
-        column[m, 0] = sun.term(b.position[m], b.normal[m])
-        transfer.append(np.concatenate([t, column], axis=2))
+        # Without occlusion: the paper's nu.
+        t = problem.transfer[i] if problem.transfer is not None else sh_basis(b.normal[m])
+        transfer.append(np.concatenate([t, sun.term(b.position[m], b.normal[m])[:, None]], axis=1))
     info = {
         "used": True,
         "direction": [float(x) for x in found.direction],
@@ -276,7 +272,7 @@ def compute(
         check_cancel(cancel)
     transfer = cells = sun = sun_info = None
     if opt.occlusion and opt.method != "project":
-        from .geometry.transfer import occlusion_grid, transfer_maps
+        from .geometry.transfer import occlusion_grid
 
         solve_progress(0.0, "occlusion")
         t_occ = time.perf_counter()
@@ -289,7 +285,7 @@ def compute(
             weights,
             threads=opt.threads,
         )
-        transfer = [transfer_maps(cells, b.uv, m, b.normal) for b, m in zip(bakes, light_masks)]
+        transfer = [cells.transfer(b.uv[m], b.normal[m]) for b, m in zip(bakes, light_masks)]
         occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(

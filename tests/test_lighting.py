@@ -138,7 +138,7 @@ def test_a_25_coefficient_transfer_solves(exposed, lighting):
 
     _, problem, _ = exposed
     p = problem
-    transfer = [sh_basis(n, order=4) * open_factor(25).astype(np.float32) for n in p.normals]
+    transfer = [sh_basis(n[m], order=4) * open_factor(25).astype(np.float32) for n, m in zip(p.normals, p.masks)]
     q = Problem(p.images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight, transfer=transfer)
     r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=6, min_iter=6))
     assert r.sigma.shape == (6, 3, 25)
@@ -194,7 +194,7 @@ def _with_sun_column(problem, scene, strength):
         col = np.where(m, np.maximum(n @ w, 0.0), 0.0).astype(np.float32)
         lit = img + strength * np.where(m[..., None], np.nan_to_num(rho), 0.0) * col[..., None]
         images.append(np.maximum(lit, 0.0).astype(np.float32))
-        transfer.append(np.concatenate([sh_basis(n), col[..., None]], axis=2))
+        transfer.append(np.concatenate([sh_basis(n[m]), col[m][:, None]], axis=1))
     p = problem
     return Problem(images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight, transfer=transfer)
 

@@ -64,6 +64,21 @@ def test_correspondence_indices_out_of_range():
 
 def test_a_transfer_of_order_2_and_a_sun_column_is_accepted_and_other_widths_are_not():
     imgs, masks, nrms = _views()
-    assert Problem(imgs, masks, nrms, transfer=[np.zeros((6, 7, 10), np.float32)] * 2).n_views == 2
+    rows = [int(m.sum()) for m in masks]
+    assert Problem(imgs, masks, nrms, transfer=[np.zeros((n, 10), np.float32) for n in rows]).n_views == 2
     with pytest.raises(ValueError, match="10, 16 or 25"):
-        Problem(imgs, masks, nrms, transfer=[np.zeros((6, 7, 11), np.float32)] * 2)
+        Problem(imgs, masks, nrms, transfer=[np.zeros((n, 11), np.float32) for n in rows])
+
+
+def test_a_transfer_has_a_row_per_masked_pixel():
+    # Held per masked pixel, not as (H, W, K) maps: at the 2K case's size that is a quarter of the memory.
+    imgs, masks, nrms = _views()
+    with pytest.raises(ValueError, match="one row per masked pixel"):
+        Problem(imgs, masks, nrms, transfer=[np.zeros(m.shape + (9,), np.float32) for m in masks])
+    short = [np.zeros((int(m.sum()) - 1, 9), np.float32) for m in masks]
+    with pytest.raises(ValueError, match="one row per masked pixel"):
+        Problem(imgs, masks, nrms, transfer=short)
+    bad = [np.zeros((int(m.sum()), 9), np.float32) for m in masks]
+    bad[1][0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        Problem(imgs, masks, nrms, transfer=bad)

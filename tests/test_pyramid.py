@@ -87,6 +87,19 @@ def test_coarsen_without_a_texture(scene, monkeypatch):
     assert coarsen(bare) is None
 
 
+def test_coarsen_keeps_the_transfer_rows_of_the_pixels_it_keeps(scene, monkeypatch):
+    # The transfer is held per masked pixel: each coarse pixel's row must be its fine pixel's.
+    _, problem = scene
+    monkeypatch.setattr(pyramid, "MIN_SIZE", 8)
+    monkeypatch.setattr(pyramid, "MIN_PIXELS", 1000)
+    rows, cols = zip(*(np.nonzero(m) for m in problem.masks))
+    transfer = [np.stack([r, c] + [r * 0] * 7, axis=1).astype(np.float32) for r, c in zip(rows, cols)]
+    small = coarsen(Problem(problem.images, problem.masks, problem.normals, transfer=transfer))
+    for t, m in zip(small.transfer, small.masks):
+        r, c = np.nonzero(m)
+        np.testing.assert_array_equal(t[:, :2], np.stack([2 * r, 2 * c], axis=1))
+
+
 def test_upsample_pixels_is_bilinear_inside_the_coarse_mask():
     h, w = 20, 30
     r, c = np.mgrid[0:h, 0:w]

@@ -47,7 +47,6 @@ __all__ = [
     "OcclusionGrid",
     "occlusion_grid",
     "pixel_transfer",
-    "transfer_maps",
 ]
 
 #: The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
@@ -301,8 +300,9 @@ def pixel_transfer(
 
     Returns
     -------
-    list of (H, W, (order + 1)^2) float32 arrays
-        Zero outside the masks.
+    list of (P_i, (order + 1)^2) float32 arrays
+        Per view, one row per masked pixel (in the order ``image[mask]`` gives them), as
+        :class:`core.solve.problem.Problem` takes them.
     """
     cells = occlusion_grid(
         tri_pos,
@@ -318,11 +318,4 @@ def pixel_transfer(
         order,
         threads,
     )
-    return [transfer_maps(cells, uv, mask, nrm) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
-
-
-def transfer_maps(cells: OcclusionGrid, uv, mask, normal) -> np.ndarray:
-    """One view's transfer, ``(H, W, K)`` float32, zero outside ``mask``."""
-    t = np.zeros(mask.shape + (cells.occ.shape[1],), np.float32)
-    t[mask] = cells.transfer(uv[mask], normal[mask])
-    return t
+    return [cells.transfer(uv[mask], nrm[mask]) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]

@@ -208,7 +208,7 @@ def _masked_pixels(problem: Problem):
     for i in range(problem.n_views):
         mask = problem.masks[i]
         values.append(problem.images[i][mask])
-        nus.append(sh_basis(problem.normals[i][mask]) if problem.transfer is None else problem.transfer[i][mask])
+        nus.append(sh_basis(problem.normals[i][mask]) if problem.transfer is None else problem.transfer[i])
         offsets[i + 1] = offsets[i] + int(mask.sum())
     return offsets, np.concatenate(values).astype(np.float32), np.concatenate(nus)
 

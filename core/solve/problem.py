@@ -59,12 +59,13 @@ class Problem:
         normal and the viewing ray; grazing views count less. Default 1.
     names : list of str, optional
         View names, used in messages and output file names.
-    transfer : list of (H, W, K) arrays, optional
-        Per pixel, the SH transfer that replaces ``nu(normal)`` in the shading
-        ``sigma . nu`` (occlusion-aware, :mod:`core.geometry.transfer`); K is
-        9 (the paper's order 2), 16 or 25 (orders 3 and 4), or 10: order 2
-        and a sun term (:class:`core.geometry.sun.SunLight`) as the last
-        column, whose coefficient the solver keeps >= 0.
+    transfer : list of (P_i, K) arrays, optional
+        Per masked pixel (in the order ``image[mask]`` gives them), the SH
+        transfer that replaces ``nu(normal)`` in the shading ``sigma . nu``
+        (occlusion-aware, :mod:`core.geometry.transfer`); K is 9 (the paper's
+        order 2), 16 or 25 (orders 3 and 4), or 10: order 2 and a sun term
+        (:class:`core.geometry.sun.SunLight`) as the last column, whose
+        coefficient the solver keeps >= 0.
         Default: the paper's ``nu`` of the normals.
     """
 
@@ -144,21 +145,22 @@ class Problem:
 
     def _check_transfer(self):
         if len(self.transfer) != self.n_views:
-            _fail(f"problem: {len(self.transfer)} transfer maps for {self.n_views} images")
+            _fail(f"problem: {len(self.transfer)} transfers for {self.n_views} images")
         self.transfer = [np.asarray(t, dtype=np.float32) for t in self.transfer]
         for i, (t, mask) in enumerate(zip(self.transfer, self.masks)):
+            n = int(np.count_nonzero(mask))
             if (
-                t.shape[:2] != mask.shape
-                or t.ndim != 3
-                or t.shape[2] not in (9, SUN_COLUMNS, 16, 25)
-                or t.shape[2] != self.transfer[0].shape[2]
+                t.ndim != 2
+                or t.shape[0] != n
+                or t.shape[1] not in (9, SUN_COLUMNS, 16, 25)
+                or t.shape[1] != self.transfer[0].shape[1]
             ):
                 _fail(
-                    f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected {mask.shape + (9,)} "
-                    "(or 10, 16 or 25 coefficients, the same in every view)"
+                    f"view {i} ({self.names[i]}): transfer shape {t.shape}, expected ({n}, 9): one row per masked "
+                    "pixel (or 10, 16 or 25 coefficients, the same in every view)"
                 )
-            if not np.isfinite(t[mask]).all():
-                _fail(f"view {i} ({self.names[i]}): transfer inside the mask is NaN or infinite")
+            if not np.isfinite(t).all():
+                _fail(f"view {i} ({self.names[i]}): transfer is NaN or infinite")
 
     def _check_correspondences(self):
         c = self.correspondences

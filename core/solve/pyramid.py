@@ -93,6 +93,12 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
     def half(seq):
         return None if seq is None else [np.ascontiguousarray(a[::2, ::2]) for a in seq]
 
+    def half_rows(rows):  # per masked pixel: the rows of the pixels kept
+        if rows is None:
+            return None
+        kept = [(np.cumsum(m.ravel()).reshape(m.shape) - 1)[::2, ::2][s] for m, s in zip(problem.masks, sub)]
+        return [r[k] for r, k in zip(rows, kept)]
+
     return Problem(
         half(problem.images),
         sub,
@@ -102,7 +108,7 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
         texture=None if layout is None else _coarsen_layout(layout),
         view_weight=half(problem.view_weight),
         names=list(problem.names),
-        transfer=half(problem.transfer),
+        transfer=half_rows(problem.transfer),
     )
 
 
