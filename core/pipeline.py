@@ -6,17 +6,17 @@ The Blender layer reads the scene and bakes it (:mod:`core.scene`, :mod:`core.ge
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .geometry.texels import texture_layout
+from .memory import peak_mb
 from .options import OPTIONS, Options
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
-from .solve.problem import Problem
+from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams, solve
 from .texture import fill_unseen, fuse_views, sample_texture
 
@@ -73,16 +73,6 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
-def peak_mb() -> float | None:
-    """The process's peak resident memory so far, in MB (None where the system does not say)."""
-    try:
-        import resource
-    except ImportError:  # Windows
-        return None
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KiB elsewhere
-
-
 def uses_detail(options: Options) -> bool:
     """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
     return bool(options.detail) and options.method != "project"
@@ -136,6 +126,14 @@ def _lighting_stage(problem, params, progress, cancel):
 SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
 
 
+def _occlusion_transfer(cells, bakes, masks) -> list:
+    """Per view, the transfer of its masked pixels with occlusion: consecutive row blocks of one array."""
+    transfer = row_blocks([int(np.count_nonzero(m)) for m in masks], cells.occ.shape[1])
+    for b, m, rows in zip(bakes, masks, transfer):
+        rows[:] = cells.transfer(b.uv[m], b.normal[m])
+    return transfer
+
+
 def _with_sun(problem, inputs, bakes, lighting, opt, progress):
     """The problem with a sun term as its transfer's last column, found from the photos (option ``sun``).
 
@@ -165,11 +163,12 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
         progress(0.0, f"sun shadows: off, {e}")
         return problem, None, {"used": False, "reason": str(e)}
     sun = SunLight(found.direction, inputs.mesh.tri_pos)
-    transfer = []
-    for i, (b, m) in enumerate(zip(bakes, problem.masks)):
+    k = problem.transfer[0].shape[1] if problem.transfer is not None else 9
+    transfer = row_blocks([int(np.count_nonzero(m)) for m in problem.masks], k + 1)
+    for i, (b, m, rows) in enumerate(zip(bakes, problem.masks, transfer)):
         # Without occlusion: the paper's nu.
-        t = problem.transfer[i] if problem.transfer is not None else sh_basis(b.normal[m])
-        transfer.append(np.concatenate([t, sun.term(b.position[m], b.normal[m])[:, None]], axis=1))
+        rows[:, :k] = problem.transfer[i] if problem.transfer is not None else sh_basis(b.normal[m])
+        rows[:, k] = sun.term(b.position[m], b.normal[m])
     info = {
         "used": True,
         "direction": [float(x) for x in found.direction],
@@ -285,7 +284,7 @@ def compute(
             weights,
             threads=opt.threads,
         )
-        transfer = [cells.transfer(b.uv[m], b.normal[m]) for b, m in zip(bakes, light_masks)]
+        transfer = _occlusion_transfer(cells, bakes, light_masks)
         occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(

@@ -51,7 +51,7 @@ import scipy.sparse as sp
 
 from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels
-from .problem import Problem
+from .problem import Problem, stacked_rows
 from .sh import sh_basis, sh_products
 from .spmv import PairNormal, matvec_into
 
@@ -210,7 +210,8 @@ def _masked_pixels(problem: Problem):
         values.append(problem.images[i][mask])
         nus.append(sh_basis(problem.normals[i][mask]) if problem.transfer is None else problem.transfer[i])
         offsets[i + 1] = offsets[i] + int(mask.sum())
-    return offsets, np.concatenate(values).astype(np.float32), np.concatenate(nus)
+    # The pipeline's transfer is one array in blocks per view (row_blocks): no copy of it.
+    return offsets, np.concatenate(values).astype(np.float32), stacked_rows(nus)
 
 
 def _difference_rows(a, b, coef_b=None):

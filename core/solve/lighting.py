@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import Cancelled
+from ..memory import release_free_memory
 from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
@@ -257,6 +258,15 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
     return out
 
 
+def _start(d, sigma, half=None) -> np.ndarray:
+    """The albedo stage's start: the half-size solve where it has a value, else :func:`division_start`."""
+    rho0 = division_start(d, sigma)
+    if half is None:
+        return rho0
+    rho = half.reshape(-1, half.shape[-1])[d.texel_index]
+    return np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
+
+
 #: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
 #: fewer photo pixels per texel than this: there each texel's division of the photos is mostly noise, which
 #: the MM takes many iterations to smooth and the edge weights would take for changes of colour. Between
@@ -345,11 +355,8 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         )
     t_build = time.perf_counter() - t_build0
     if rho0 is None:
-        rho0 = division_start(d, sigma)
-        if half is not None:
-            rho = half.reshape(-1, half.shape[-1])[d.texel_index]
-            rho0 = np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
-            half = None
+        rho0 = _start(d, sigma, half)
+        half = None
     if params.albedo_edges > 0 and d.domain == "texture":
         from .edges import with_edges_freed
 
@@ -361,6 +368,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
         channels.append(ch)
+    rho0 = None  # each channel has its own copy
     history = [sum(ch.e for ch in channels)]
     it = 0
     with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
@@ -368,6 +376,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            release_free_memory()
             it += 1
             if progress is not None:
                 progress(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..memory import release_free_memory
 from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
@@ -348,8 +349,9 @@ class _Channel:
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
         self.e = self.energy()
 
-    def _set_sigma(self, sigma, shade):
-        self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
+    def _set_sigma(self, sigma, shade, obs_shade=None):
+        self.sigma, self.shade = sigma, shade
+        self.obs_shade = shade[self.d.obs_pixel] if obs_shade is None else obs_shade
 
     def energy(self, rho=None, obs_shade=None, sigma=None, world=None):
         e = _channel_energy(
@@ -469,9 +471,10 @@ class _Channel:
             sigma = np.array(sigma)
             sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
         shade = _shading(d, sigma, self.ft)
-        e = self.energy(obs_shade=shade[d.obs_pixel], sigma=sigma, world=world)
+        obs_shade = shade[d.obs_pixel]
+        e = self.energy(obs_shade=obs_shade, sigma=sigma, world=world)
         if e <= self.e:
-            self._set_sigma(sigma, shade)
+            self._set_sigma(sigma, shade, obs_shade)
             if world is not None:
                 self.coupling.world = world
             self.e = e
@@ -696,6 +699,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
         for it in range(1, params.max_iter + 1):
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            release_free_memory()
             elapsed.append(time.perf_counter() - t0)
             report(it, history[-1])
             prev, cur = history[-2], history[-1]
