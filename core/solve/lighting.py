@@ -164,7 +164,7 @@ class Coupling:
     def __init__(self, d, c, kappa, sigma0):
         self.kappa = float(kappa)
         w = d.obs_weight.astype(np.float64)
-        values = d.values[d.obs_pixel, c].astype(np.float64)
+        values = d.from_pixels(d.values[:, c]).astype(np.float64)
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
         k = d.nu.shape[1]
@@ -251,8 +251,8 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
     out = np.empty((d.n_unknowns, C), np.float32)
     w = d.obs_weight.astype(np.float64)
     for c in range(C):
-        a = floored(_shade(d, sigma[:, c]))[d.obs_pixel]
-        num = d.scatter(w * a * d.values[d.obs_pixel, c])
+        a = d.from_pixels(floored(_shade(d, sigma[:, c])))
+        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
         den = d.scatter(w * a * a)
         out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
     return out
@@ -386,7 +386,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = sigma.copy()
     for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        kappa = float(np.dot(d.obs_weight, d.from_pixels(ch.shade)) / d.obs_weight.sum())
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
@@ -544,8 +544,8 @@ def shading_error(d, sigma: np.ndarray, reference: np.ndarray) -> np.ndarray:
     w = d.obs_weight.astype(np.float64)
     out = np.empty(C)
     for c in range(C):
-        s = _shade(d, sigma[:, c])[d.obs_pixel]
-        r = _shade(d, reference[:, c])[d.obs_pixel]
+        s = d.from_pixels(_shade(d, sigma[:, c]))
+        r = d.from_pixels(_shade(d, reference[:, c]))
         k = np.sum(w * s * r) / max(np.sum(w * s * s), 1e-30)
         out[c] = np.sqrt(np.sum(w * (k * s - r) ** 2) / max(np.sum(w * r * r), 1e-30))
     return out

@@ -51,6 +51,8 @@ def stacked_rows(blocks) -> np.ndarray:
         start, step = base.__array_interface__["data"][0], base.strides[0]
         rows = 0
         for b in blocks:
+            if not b.size and b.shape[1:] == base.shape[1:]:
+                continue  # an empty block's pointer says nothing
             if b.base is not base or b.shape[1:] != base.shape[1:] or b.__array_interface__["data"][0] != start:
                 break
             start += b.shape[0] * step

@@ -313,7 +313,7 @@ def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu
     """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
     s = d.row_scale(lam, mu).astype(np.float64)
     return sum(
-        _channel_energy(d, rho[:, c], _shading(d, sigma[:, c])[d.obs_pixel], d.values[d.obs_pixel, c], s, delta)
+        _channel_energy(d, rho[:, c], d.from_pixels(_shading(d, sigma[:, c])), d.from_pixels(d.values[:, c]), s, delta)
         for c in range(rho.shape[1])
     )
 
@@ -345,13 +345,13 @@ class _Channel:
         self._sw = np.empty(d.B.shape[0], self.ft)
         self._pair_values = None  # the rho-step's B^T diag(sw) B (core.solve.spmv.PairNormal), made on first use
         # Gathered once per change: the observations' values and shading.
-        self.obs_values = self.values[d.obs_pixel].astype(self.ft)
+        self.obs_values = d.from_pixels(self.values).astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
         self.e = self.energy()
 
     def _set_sigma(self, sigma, shade, obs_shade=None):
         self.sigma, self.shade = sigma, shade
-        self.obs_shade = shade[self.d.obs_pixel] if obs_shade is None else obs_shade
+        self.obs_shade = self.d.from_pixels(shade) if obs_shade is None else obs_shade
 
     def energy(self, rho=None, obs_shade=None, sigma=None, world=None):
         e = _channel_energy(
@@ -471,7 +471,7 @@ class _Channel:
             sigma = np.array(sigma)
             sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
         shade = _shading(d, sigma, self.ft)
-        obs_shade = shade[d.obs_pixel]
+        obs_shade = d.from_pixels(shade)
         e = self.energy(obs_shade=obs_shade, sigma=sigma, world=world)
         if e <= self.e:
             self._set_sigma(sigma, shade, obs_shade)
@@ -715,7 +715,7 @@ def _rescaled(d: Discretization, channels):
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = np.stack([ch.sigma for ch in channels], axis=1)
     for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        kappa = float(np.dot(d.obs_weight, d.from_pixels(ch.shade)) / d.obs_weight.sum())
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
@@ -776,7 +776,7 @@ def _gauss_newton_step(ch: _Channel) -> bool:
         sigma = ch.sigma + t * dsig
         shade = _shading(d, sigma, ch.ft)
         new = (rho + t * drho).astype(ch.ft)
-        e = ch.energy(rho=new, obs_shade=shade[d.obs_pixel])
+        e = ch.energy(rho=new, obs_shade=d.from_pixels(shade))
         if e < ch.e:
             ch.rho, ch.e = new, e
             ch._set_sigma(sigma, shade)
@@ -844,7 +844,7 @@ def _sigma_coupling(d: Discretization, AT, coef: np.ndarray):
     ``d r_o / d sigma_v(o) = rho_o nu_o``: an (O, 9m) matrix with 9 entries
     per row, scaled by ``coef`` (``w a rho_o``) and coupled to rho through ``A^T``.
     """
-    nu_o = d.nu[d.obs_pixel].astype(np.float64)
+    nu_o = d.from_pixels(d.nu).astype(np.float64)
     O = nu_o.shape[0]
     N = sp.csr_matrix(
         ((coef[:, None] * nu_o).ravel(), (9 * d.obs_view[:, None] + np.arange(9)).ravel(), np.arange(0, 9 * O + 1, 9)),
