@@ -37,7 +37,7 @@ from ..memory import release_free_memory
 from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
-from .pyramid import supported_size, upsample_bilinear, with_texture_size
+from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
@@ -54,6 +54,7 @@ __all__ = [
     "lighting_stage",
     "lighting_data_model",
     "pixels_per_texel",
+    "thinned_for_lighting",
     "solve_two_stage",
     "fit_lighting",
     "shading_error",
@@ -283,6 +284,21 @@ def pixels_per_texel(problem) -> float:
     return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
 
 
+def thinned_for_lighting(problem, most: float):
+    """``problem`` at every other pixel of every other row, again, while it has more than ``most`` pixels per texel.
+
+    The lighting has a few coefficients per view: 130 pixels per texel (the 2K case's 128² lighting texture)
+    tell it no more than 32 do, at a quarter of the work. Down to 16-28 no fixture changed; at 10-16 some got worse
+    (docs/measurements.md).
+    """
+    while pixels_per_texel(problem) > most:
+        thin = coarsen(problem, texture=False)
+        if thin is None:
+            break
+        problem = replace(thin, texture=problem.texture)
+    return problem
+
+
 def _half_size_start(problem, sigma, params, progress, cancel):
     """:func:`solve_albedo` at half the size, sampled bilinearly at the texel centres of ``problem.texture``.
 
@@ -440,6 +456,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         and problem.texture.size > params.light_size
     ):
         light_problem = with_texture_size(problem, params.light_size)
+    if params.domain == "texture" and params.light_pixels > 0:
+        light_problem = thinned_for_lighting(light_problem, params.light_pixels)
     light_params = replace(params.resolved(), albedo_lam=None)
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))

@@ -135,6 +135,10 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
+    light_pixels : float
+        Two stages, texture domain: while the lighting stage's texture has more than this many photo pixels on
+        the mesh per texel, it keeps every other pixel of every other row (:func:`core.solve.pyramid.coarsen`);
+        0 keeps them all.
     light_data_model : {"nearest", "splat", "interpolate"}
         Two stages, texture domain: the lighting stage's data model (see
         ``data_model``); "nearest" gives each pixel one observation, of its
@@ -175,6 +179,7 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
+    light_pixels: float = 128.0
     light_edges: float = 0.003
     light_data_model: str = "nearest"
     albedo_edges: float = 0.002
@@ -221,7 +226,7 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        for name in ("light_edges", "albedo_edges"):
+        for name in ("light_edges", "albedo_edges", "light_pixels"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
