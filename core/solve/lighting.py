@@ -385,6 +385,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         ch.e = ch.energy()
         channels.append(ch)
     rho0 = None  # each channel has its own copy
+    release_free_memory()  # the build's temporaries
     history = [sum(ch.e for ch in channels)]
     it = 0
     with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
@@ -491,6 +492,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
 
     light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
     first.views = None  # not needed: free them before the larger stage
+    light_pixels = sum(int(m.sum()) for m in light_problem.masks)
+    light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
     albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
     albedo_params = replace(params, lam=params.albedo_lam)
@@ -503,7 +506,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         "lighting": params.lighting,
         "edges": first.info.get("edges"),
         "data_model": first.info.get("data_model"),
-        "pixels": sum(int(m.sum()) for m in light_problem.masks),
+        "pixels": light_pixels,
         "seconds": t1 - t0,
     }
     second.info["albedo_lam"] = params.albedo_lam
