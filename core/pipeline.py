@@ -6,17 +6,17 @@ The Blender layer reads the scene and bakes it (:mod:`core.scene`, :mod:`core.ge
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .geometry.texels import texture_layout
+from .memory import peak_mb
 from .options import OPTIONS, Options
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
-from .solve.problem import Problem
+from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams, solve
 from .texture import fill_unseen, fuse_views, sample_texture
 
@@ -73,16 +73,6 @@ def _unclipped(mask, clipped):
     return keep if keep.any() else mask
 
 
-def peak_mb() -> float | None:
-    """The process's peak resident memory so far, in MB (None where the system does not say)."""
-    try:
-        import resource
-    except ImportError:  # Windows
-        return None
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KiB elsewhere
-
-
 def uses_detail(options: Options) -> bool:
     """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
     return bool(options.detail) and options.method != "project"
@@ -136,19 +126,31 @@ def _lighting_stage(problem, params, progress, cancel):
 SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
 
 
-def _with_sun(problem, inputs, bakes, lighting, opt, progress):
-    """The problem with a sun term as its transfer's last column, found from the photos (option ``sun``).
+def _transfer(bakes, masks, cells, sun) -> list:
+    """Per view, the transfer of its masked pixels (:func:`core.geometry.transfer.transfer_rows`), as
+    consecutive row blocks of one array (:func:`core.solve.problem.row_blocks`), which the solver uses uncopied.
+    """
+    from .geometry.transfer import transfer_rows
 
-    Returns the problem, the :class:`core.geometry.sun.SunLight` (None when not used) and a summary for the
-    report. A light that moves between the photos (``lighting`` ``per_view``) gets no sun; under the other
-    models the sun is one world light (:class:`core.solve.lighting.Coupling`, ``shared_lighting_step``).
+    k = (9 if cells is None else cells.occ.shape[1]) + (sun is not None)
+    transfer = row_blocks([int(np.count_nonzero(m)) for m in masks], k)
+    for b, m, rows in zip(bakes, masks, transfer):
+        transfer_rows(b.normal[m], b.uv[m], cells, sun, None if sun is None else b.position[m], out=rows)
+    return transfer
+
+
+def _find_sun(problem, inputs, bakes, lighting, opt, progress):
+    """The sun, found from the photos (option ``sun``), whose term becomes the transfer's last column.
+
+    Returns the :class:`core.geometry.sun.SunLight` (None when not used) and a summary for the report. A light
+    that moves between the photos (``lighting`` ``per_view``) gets no sun; under the other models the sun is one
+    world light (:class:`core.solve.lighting.Coupling`, ``shared_lighting_step``).
     """
     from .geometry.sun import SunLight, SunNotFound, find_sun
-    from .solve.sh import sh_basis
 
     if lighting == "per_view":
         progress(0.0, "sun shadows: off, the light changes between the photos")
-        return problem, None, {"used": False, "reason": "the light changes between the photos"}
+        return None, {"used": False, "reason": "the light changes between the photos"}
     progress(0.0, "finding the sun")
     t0 = time.perf_counter()
     try:
@@ -163,13 +165,8 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
         )
     except SunNotFound as e:  # too few pixels to tell where it is: solve without it, and say so
         progress(0.0, f"sun shadows: off, {e}")
-        return problem, None, {"used": False, "reason": str(e)}
+        return None, {"used": False, "reason": str(e)}
     sun = SunLight(found.direction, inputs.mesh.tri_pos)
-    transfer = []
-    for i, (b, m) in enumerate(zip(bakes, problem.masks)):
-        # Without occlusion: the paper's nu.
-        t = problem.transfer[i] if problem.transfer is not None else sh_basis(b.normal[m])
-        transfer.append(np.concatenate([t, sun.term(b.position[m], b.normal[m])[:, None]], axis=1))
     info = {
         "used": True,
         "direction": [float(x) for x in found.direction],
@@ -177,7 +174,7 @@ def _with_sun(problem, inputs, bakes, lighting, opt, progress):
         "seconds": time.perf_counter() - t0,
     }
     progress(0.0, f"sun towards ({', '.join(f'{x:.2f}' for x in found.direction)}), found in {info['seconds']:.0f} s")
-    return replace(problem, transfer=transfer), sun, info
+    return sun, info
 
 
 def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
@@ -270,7 +267,7 @@ def compute(
             [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
         )
         check_cancel(cancel)
-    transfer = cells = sun = sun_info = None
+    cells = sun = sun_info = None
     if opt.occlusion and opt.method != "project":
         from .geometry.transfer import occlusion_grid
 
@@ -285,7 +282,6 @@ def compute(
             weights,
             threads=opt.threads,
         )
-        transfer = [cells.transfer(b.uv[m], b.normal[m]) for b, m in zip(bakes, light_masks)]
         occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
         check_cancel(cancel)
     problem = Problem(
@@ -297,7 +293,6 @@ def compute(
         texture=layout if opt.method == "texture" else None,
         view_weight=weights,
         names=[v.name for v in inputs.views],
-        transfer=transfer,
     )
     result = None
     lam, variation, lighting = opt.lam, None, opt.lighting
@@ -314,9 +309,10 @@ def compute(
             if lighting == "auto":
                 lighting = choose_lighting(variation)
         if opt.sun:
-            problem, sun, sun_info = _with_sun(problem, inputs, bakes, lighting, opt, solve_progress)
-            transfer = None  # the problem holds the maps with the sun's column: let the others go
+            sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
             check_cancel(cancel)
+        if cells is not None or sun is not None:
+            problem = replace(problem, transfer=_transfer(bakes, light_masks, cells, sun))
         params = SolverParams(
             **dict(
                 opt.solver or {},
@@ -354,7 +350,7 @@ def compute(
 
     if detail:
         # Let the solve's arrays go that the stage does not need: it is to hold the texture and one photo.
-        problem = transfer = None
+        problem = None
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(

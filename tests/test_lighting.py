@@ -207,3 +207,26 @@ def test_a_sun_column_is_never_given_a_negative_sun(exposed, lighting):
     r = solve(q, SolverParams(lam=2.0, lighting=lighting, levels=2, max_iter=8, min_iter=8))
     assert r.sigma.shape == (6, 3, 10) and np.all(r.sigma[..., 9] >= 0)
     assert np.all(np.diff(r.energy) <= 0)
+
+
+def test_the_lighting_stage_thins_dense_photos_and_the_albedo_stays_as_good():
+    from core.solve.lighting import thinned_for_lighting
+    from core.solve.pyramid import MIN_PIXELS, with_texture_size
+
+    scene = sphere_scene(varying_light=False, n_views=6, height=180, width=240, texture_size=32, seed=5, textured=True)
+    problem = scene.problem
+    light = with_texture_size(problem, 16)
+    ppt = pixels_per_texel(light)
+    thin = thinned_for_lighting(light, ppt / 3)
+    assert ppt / 12 < pixels_per_texel(thin) <= ppt / 3  # one halving: every other pixel of every other row
+    assert thin.texture is light.texture and np.array_equal(thin.images[2], light.images[2][::2, ::2])
+    assert thinned_for_lighting(light, ppt) is light
+    # Never below the coarsening's least number of pixels.
+    assert sum(int(m.sum()) for m in thinned_for_lighting(light, 1e-3).masks) >= MIN_PIXELS
+    params = dict(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=10, coarse_iter=20, light_size=16)
+    full = solve(problem, SolverParams(**params, light_pixels=0))
+    thinned = solve(problem, SolverParams(**params, light_pixels=ppt / 3))
+    used = thinned.info["lighting_stage"]["pixels"] / full.info["lighting_stage"]["pixels"]
+    assert 0.2 < used < 0.3, used
+    e_full, e_thin = _view_rmse(full, scene, problem), _view_rmse(thinned, scene, problem)
+    assert np.all(e_thin < 1.2 * e_full + 0.005), (e_thin, e_full)

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from core.solve.problem import Correspondences, Problem
+from core.solve.discretization import image_domain
+from core.solve.problem import Correspondences, Problem, row_blocks, stacked_rows
 
 
 def _views(m=2, h=6, w=7):
@@ -82,3 +83,29 @@ def test_a_transfer_has_a_row_per_masked_pixel():
     bad[1][0, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         Problem(imgs, masks, nrms, transfer=bad)
+
+
+def test_stacked_rows_gives_back_the_array_of_row_blocks_and_copies_anything_else():
+    blocks = row_blocks([3, 0, 4], 10)
+    assert [b.shape for b in blocks] == [(3, 10), (0, 10), (4, 10)]
+    for i, b in enumerate(blocks):
+        b[:] = i
+    whole = stacked_rows(blocks)
+    assert whole.shape == (7, 10) and whole is blocks[0].base  # no copy
+    assert np.array_equal(whole[:, 0], [0, 0, 0, 2, 2, 2, 2])
+    # Separate arrays, blocks out of order, or not all of the array: a new array, the same rows.
+    for other in ([b.copy() for b in blocks], blocks[::-1], blocks[:1]):
+        joined = stacked_rows(other)
+        assert not np.shares_memory(joined, whole)
+        assert np.array_equal(joined, np.concatenate(other))
+
+
+def test_the_discretization_holds_a_transfer_of_row_blocks_without_a_copy():
+    imgs, masks, nrms = _views()
+    transfer = row_blocks([int(m.sum()) for m in masks], 10)
+    for i, rows in enumerate(transfer):
+        rows[:] = np.arange(10) + i
+    d = image_domain(Problem(imgs, masks, nrms, transfer=transfer))
+    assert d.nu is transfer[0].base
+    copied = image_domain(Problem(imgs, masks, nrms, transfer=[t.copy() for t in transfer]))
+    assert np.array_equal(copied.nu, d.nu) and not np.shares_memory(copied.nu, d.nu)

@@ -96,10 +96,10 @@ def test_no_pairs_is_a_clear_error(scene):
 
 def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
     # A scene whose photos have no two neighbouring pixels on the mesh (a tiny mesh far away): no sun term,
-    # a reason in the report and in the progress, and the problem as it was.
+    # a reason in the report and in the progress.
     from types import SimpleNamespace
 
-    from core.pipeline import _with_sun
+    from core.pipeline import _find_sun
     from core.solve.problem import Problem
 
     photos, masks, positions, normals = _views(scene, 1.0)
@@ -107,7 +107,7 @@ def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
     apart = [m & ((rows + cols) % 2 == 0) for m in masks]  # a checkerboard: no neighbour right or below
     problem = Problem(images=photos, masks=apart, normals=normals)
     said = []
-    out, sun, info = _with_sun(
+    sun, info = _find_sun(
         problem,
         SimpleNamespace(mesh=SimpleNamespace(tri_pos=scene)),
         [SimpleNamespace(position=p, normal=n) for p, n in zip(positions, normals)],
@@ -115,6 +115,31 @@ def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
         SimpleNamespace(threads=1),
         lambda frac, msg: said.append(msg),
     )
-    assert out is problem and sun is None
+    assert sun is None
     assert info == {"used": False, "reason": "sun search: no two neighbouring pixels on the mesh in any photo"}
     assert said[-1] == "sun shadows: off, sun search: no two neighbouring pixels on the mesh in any photo"
+
+
+def test_the_transfer_rows_are_nu_then_the_sun_column_with_shadows(scene):
+    from core.geometry.sun import SunLight
+    from core.geometry.transfer import transfer_rows
+    from core.solve.problem import row_blocks
+    from core.solve.sh import sh_basis
+
+    _, masks, positions, normals = _views(scene, 1.0)
+    m = masks[0]
+    n, p = normals[0][m].astype(np.float32), positions[0][m]
+    sun = SunLight(SUN, scene)
+    rows = transfer_rows(n, None, None, sun, p)
+    assert rows.shape == (n.shape[0], 10) and rows.dtype == np.float32
+    assert np.array_equal(rows[:, :9], sh_basis(n))
+    lit = np.maximum(n @ SUN, 0) > 0.2
+    # The sun's column: the cosine where the sun is seen, 0 in the box's shadow and on faces turned away.
+    seen = visibility(p, n, scene, SUN[None], resolution=512)[:, 0] > 0.5
+    # (the sun's shadow map and the visibility rays disagree on a few pixels at the shadow's edges)
+    assert np.mean(np.abs(rows[lit & seen, 9] - n[lit & seen] @ SUN) < 1e-4) > 0.97
+    assert np.mean(rows[lit & ~seen, 9] < 0.05) > 0.9 and (lit & ~seen).sum() > 50
+    # Into a block of the problem's transfer, in place.
+    block = row_blocks([n.shape[0]], 10)[0]
+    assert transfer_rows(n, None, None, sun, p, out=block) is block and np.array_equal(block, rows)
+    assert transfer_rows(n).shape == (n.shape[0], 9)

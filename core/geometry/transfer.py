@@ -47,6 +47,7 @@ __all__ = [
     "OcclusionGrid",
     "occlusion_grid",
     "pixel_transfer",
+    "transfer_rows",
 ]
 
 #: The clamped cosine's SH coefficients per band l = 0..4 (Ramamoorthi and Hanrahan 2001): odd bands above 1
@@ -319,3 +320,21 @@ def pixel_transfer(
         threads,
     )
     return [cells.transfer(uv[mask], nrm[mask]) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
+
+
+def transfer_rows(normal, uv=None, cells=None, sun=None, position=None, out=None) -> np.ndarray:
+    """The transfer of pixels, ``(P, K)`` float32: what the lighting's coefficients multiply.
+
+    ``nu(n)`` of the unit normals (the paper's model), or with ``cells`` (an :class:`OcclusionGrid`) its
+    occlusion sampled at the UVs; with ``sun`` (a :class:`core.geometry.sun.SunLight`) one more column last,
+    the sun's term at the world ``position``. Written into ``out`` if given (a row block of the problem's
+    transfer, :func:`core.solve.problem.row_blocks`).
+    """
+    t = cells.transfer(uv, normal) if cells is not None else sh_basis(normal)
+    k = t.shape[1]
+    if out is None:
+        out = np.empty((t.shape[0], k + (sun is not None)), np.float32)
+    out[:, :k] = t
+    if sun is not None:
+        out[:, k] = sun.term(position, normal)
+    return out

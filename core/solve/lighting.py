@@ -33,10 +33,11 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import Cancelled
+from ..memory import release_free_memory
 from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
-from .pyramid import supported_size, upsample_bilinear, with_texture_size
+from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .sh import unpack_products
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
@@ -53,6 +54,7 @@ __all__ = [
     "lighting_stage",
     "lighting_data_model",
     "pixels_per_texel",
+    "thinned_for_lighting",
     "solve_two_stage",
     "fit_lighting",
     "shading_error",
@@ -163,7 +165,7 @@ class Coupling:
     def __init__(self, d, c, kappa, sigma0):
         self.kappa = float(kappa)
         w = d.obs_weight.astype(np.float64)
-        values = d.values[d.obs_pixel, c].astype(np.float64)
+        values = d.from_pixels(d.values[:, c]).astype(np.float64)
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
         k = d.nu.shape[1]
@@ -250,11 +252,20 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
     out = np.empty((d.n_unknowns, C), np.float32)
     w = d.obs_weight.astype(np.float64)
     for c in range(C):
-        a = floored(_shade(d, sigma[:, c]))[d.obs_pixel]
-        num = d.scatter(w * a * d.values[d.obs_pixel, c])
+        a = d.from_pixels(floored(_shade(d, sigma[:, c])))
+        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
         den = d.scatter(w * a * a)
         out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
     return out
+
+
+def _start(d, sigma, half=None) -> np.ndarray:
+    """The albedo stage's start: the half-size solve where it has a value, else :func:`division_start`."""
+    rho0 = division_start(d, sigma)
+    if half is None:
+        return rho0
+    rho = half.reshape(-1, half.shape[-1])[d.texel_index]
+    return np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
 
 
 #: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
@@ -271,6 +282,21 @@ def pixels_per_texel(problem) -> float:
     """Photo pixels on the mesh per texel inside the UV islands of ``problem.texture``."""
     pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
     return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
+
+
+def thinned_for_lighting(problem, most: float):
+    """``problem`` at every other pixel of every other row, again, while it has more than ``most`` pixels per texel.
+
+    The lighting has a few coefficients per view: 130 pixels per texel (the 2K case's 128² lighting texture)
+    tell it no more than 32 do, at a quarter of the work. Down to 16-28 no fixture changed; at 10-16 some got worse
+    (docs/measurements.md).
+    """
+    while pixels_per_texel(problem) > most:
+        thin = coarsen(problem, texture=False)
+        if thin is None:
+            break
+        problem = replace(thin, texture=problem.texture)
+    return problem
 
 
 def _half_size_start(problem, sigma, params, progress, cancel):
@@ -345,11 +371,8 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         )
     t_build = time.perf_counter() - t_build0
     if rho0 is None:
-        rho0 = division_start(d, sigma)
-        if half is not None:
-            rho = half.reshape(-1, half.shape[-1])[d.texel_index]
-            rho0 = np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
-            half = None
+        rho0 = _start(d, sigma, half)
+        half = None
     if params.albedo_edges > 0 and d.domain == "texture":
         from .edges import with_edges_freed
 
@@ -361,6 +384,8 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
         channels.append(ch)
+    rho0 = None  # each channel has its own copy
+    release_free_memory()  # the build's temporaries
     history = [sum(ch.e for ch in channels)]
     it = 0
     with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
@@ -368,6 +393,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            release_free_memory()
             it += 1
             if progress is not None:
                 progress(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
@@ -377,7 +403,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = sigma.copy()
     for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        kappa = float(np.dot(d.obs_weight, d.from_pixels(ch.shade)) / d.obs_weight.sum())
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
@@ -431,6 +457,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         and problem.texture.size > params.light_size
     ):
         light_problem = with_texture_size(problem, params.light_size)
+    if params.domain == "texture" and params.light_pixels > 0:
+        light_problem = thinned_for_lighting(light_problem, params.light_pixels)
     light_params = replace(params.resolved(), albedo_lam=None)
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
@@ -464,6 +492,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
 
     light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
     first.views = None  # not needed: free them before the larger stage
+    light_pixels = sum(int(m.sum()) for m in light_problem.masks)
+    light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
     albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
     albedo_params = replace(params, lam=params.albedo_lam)
@@ -476,7 +506,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
         "lighting": params.lighting,
         "edges": first.info.get("edges"),
         "data_model": first.info.get("data_model"),
-        "pixels": sum(int(m.sum()) for m in light_problem.masks),
+        "pixels": light_pixels,
         "seconds": t1 - t0,
     }
     second.info["albedo_lam"] = params.albedo_lam
@@ -535,8 +565,8 @@ def shading_error(d, sigma: np.ndarray, reference: np.ndarray) -> np.ndarray:
     w = d.obs_weight.astype(np.float64)
     out = np.empty(C)
     for c in range(C):
-        s = _shade(d, sigma[:, c])[d.obs_pixel]
-        r = _shade(d, reference[:, c])[d.obs_pixel]
+        s = d.from_pixels(_shade(d, sigma[:, c]))
+        r = d.from_pixels(_shade(d, reference[:, c]))
         k = np.sum(w * s * r) / max(np.sum(w * s * s), 1e-30)
         out[c] = np.sqrt(np.sum(w * (k * s - r) ** 2) / max(np.sum(w * r * r), 1e-30))
     return out

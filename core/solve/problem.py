@@ -25,7 +25,7 @@ import numpy as np
 from ..geometry.correspondences import Correspondences
 from ..geometry.texels import TextureLayout
 
-__all__ = ["Problem", "SUN_COLUMNS"]
+__all__ = ["Problem", "SUN_COLUMNS", "row_blocks", "stacked_rows"]
 
 #: Width of a transfer with a sun term: order 2's 9 SH coefficients, then the sun's (Problem.transfer).
 SUN_COLUMNS = 10
@@ -33,6 +33,34 @@ SUN_COLUMNS = 10
 
 def _fail(msg):
     raise ValueError(msg)
+
+
+def row_blocks(counts, width: int, dtype=np.float32) -> list:
+    """Consecutive row blocks ``(counts[i], width)`` of one new array, to fill in place (a transfer per view).
+
+    :func:`stacked_rows` gives the whole array back without copying it.
+    """
+    rows = np.empty((int(np.sum(counts)), width), dtype)
+    return np.split(rows, np.cumsum(counts)[:-1])
+
+
+def stacked_rows(blocks) -> np.ndarray:
+    """The rows of ``blocks`` one after another: the array they are consecutive blocks of, else a new one."""
+    base = blocks[0].base
+    if isinstance(base, np.ndarray) and base.ndim == 2 and base.flags.c_contiguous:
+        start, step = base.__array_interface__["data"][0], base.strides[0]
+        rows = 0
+        for b in blocks:
+            if not b.size and b.shape[1:] == base.shape[1:]:
+                continue  # an empty block's pointer says nothing
+            if b.base is not base or b.shape[1:] != base.shape[1:] or b.__array_interface__["data"][0] != start:
+                break
+            start += b.shape[0] * step
+            rows += b.shape[0]
+        else:
+            if rows == base.shape[0] and base.dtype == blocks[0].dtype:
+                return base
+    return np.concatenate(blocks)
 
 
 @dataclass

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..memory import release_free_memory
 from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
@@ -134,6 +135,10 @@ class SolverParams:
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
+    light_pixels : float
+        Two stages, texture domain: while the lighting stage's texture has more than this many photo pixels on
+        the mesh per texel, it keeps every other pixel of every other row (:func:`core.solve.pyramid.coarsen`);
+        0 keeps them all.
     light_data_model : {"nearest", "splat", "interpolate"}
         Two stages, texture domain: the lighting stage's data model (see
         ``data_model``); "nearest" gives each pixel one observation, of its
@@ -174,6 +179,7 @@ class SolverParams:
     coupling: float = 10.0
     albedo_lam: float | None = None
     light_size: int = 128
+    light_pixels: float = 128.0
     light_edges: float = 0.003
     light_data_model: str = "nearest"
     albedo_edges: float = 0.002
@@ -220,7 +226,7 @@ class SolverParams:
             raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        for name in ("light_edges", "albedo_edges"):
+        for name in ("light_edges", "albedo_edges", "light_pixels"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
@@ -312,7 +318,7 @@ def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu
     """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
     s = d.row_scale(lam, mu).astype(np.float64)
     return sum(
-        _channel_energy(d, rho[:, c], _shading(d, sigma[:, c])[d.obs_pixel], d.values[d.obs_pixel, c], s, delta)
+        _channel_energy(d, rho[:, c], d.from_pixels(_shading(d, sigma[:, c])), d.from_pixels(d.values[:, c]), s, delta)
         for c in range(rho.shape[1])
     )
 
@@ -344,12 +350,13 @@ class _Channel:
         self._sw = np.empty(d.B.shape[0], self.ft)
         self._pair_values = None  # the rho-step's B^T diag(sw) B (core.solve.spmv.PairNormal), made on first use
         # Gathered once per change: the observations' values and shading.
-        self.obs_values = self.values[d.obs_pixel].astype(self.ft)
+        self.obs_values = d.from_pixels(self.values).astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
         self.e = self.energy()
 
-    def _set_sigma(self, sigma, shade):
-        self.sigma, self.shade, self.obs_shade = sigma, shade, shade[self.d.obs_pixel]
+    def _set_sigma(self, sigma, shade, obs_shade=None):
+        self.sigma, self.shade = sigma, shade
+        self.obs_shade = self.d.from_pixels(shade) if obs_shade is None else obs_shade
 
     def energy(self, rho=None, obs_shade=None, sigma=None, world=None):
         e = _channel_energy(
@@ -469,9 +476,10 @@ class _Channel:
             sigma = np.array(sigma)
             sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
         shade = _shading(d, sigma, self.ft)
-        e = self.energy(obs_shade=shade[d.obs_pixel], sigma=sigma, world=world)
+        obs_shade = d.from_pixels(shade)
+        e = self.energy(obs_shade=obs_shade, sigma=sigma, world=world)
         if e <= self.e:
-            self._set_sigma(sigma, shade)
+            self._set_sigma(sigma, shade, obs_shade)
             if world is not None:
                 self.coupling.world = world
             self.e = e
@@ -696,6 +704,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
         for it in range(1, params.max_iter + 1):
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
+            release_free_memory()
             elapsed.append(time.perf_counter() - t0)
             report(it, history[-1])
             prev, cur = history[-2], history[-1]
@@ -711,7 +720,7 @@ def _rescaled(d: Discretization, channels):
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = np.stack([ch.sigma for ch in channels], axis=1)
     for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, ch.shade[d.obs_pixel]) / d.obs_weight.sum())
+        kappa = float(np.dot(d.obs_weight, d.from_pixels(ch.shade)) / d.obs_weight.sum())
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
@@ -772,7 +781,7 @@ def _gauss_newton_step(ch: _Channel) -> bool:
         sigma = ch.sigma + t * dsig
         shade = _shading(d, sigma, ch.ft)
         new = (rho + t * drho).astype(ch.ft)
-        e = ch.energy(rho=new, obs_shade=shade[d.obs_pixel])
+        e = ch.energy(rho=new, obs_shade=d.from_pixels(shade))
         if e < ch.e:
             ch.rho, ch.e = new, e
             ch._set_sigma(sigma, shade)
@@ -840,7 +849,7 @@ def _sigma_coupling(d: Discretization, AT, coef: np.ndarray):
     ``d r_o / d sigma_v(o) = rho_o nu_o``: an (O, 9m) matrix with 9 entries
     per row, scaled by ``coef`` (``w a rho_o``) and coupled to rho through ``A^T``.
     """
-    nu_o = d.nu[d.obs_pixel].astype(np.float64)
+    nu_o = d.from_pixels(d.nu).astype(np.float64)
     O = nu_o.shape[0]
     N = sp.csr_matrix(
         ((coef[:, None] * nu_o).ravel(), (9 * d.obs_view[:, None] + np.arange(9)).ravel(), np.arange(0, 9 * O + 1, 9)),

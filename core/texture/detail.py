@@ -33,9 +33,9 @@ from ..errors import DelightError
 from ..geometry.bake import bake_rows, mesh_normals
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, texel_index
+from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
 from ..solve.lighting import shading_floor
-from ..solve.sh import sh_basis
 from .fuse import fuse_views
 
 __all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
@@ -68,9 +68,7 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
     sun : core.geometry.sun.SunLight, optional
         A sun term, the last of the lighting's coefficients; ``position`` (P, 3) the pixels' world points.
     """
-    t = cells.transfer(uv, normal) if cells is not None else sh_basis(normal)
-    if sun is not None:
-        t = np.concatenate([t, sun.term(position, normal)[:, None]], axis=1)
+    t = transfer_rows(normal, uv, cells, sun, position)
     s = t @ np.asarray(sigma_view, np.float32).T
     return s if floor is None else np.maximum(s, np.asarray(floor, np.float32))
 
