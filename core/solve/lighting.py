@@ -388,7 +388,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     release_free_memory()  # the build's temporaries
     history = [sum(ch.e for ch in channels)]
     it = 0
-    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
+    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), d.obs_pixel.size)) as pool:
         while it < params.max_iter:
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
