@@ -134,14 +134,31 @@ def _fmt(v):
     return "/".join(f"{x:.3f}" for x in v)
 
 
+def box_down(albedo, seen, size):
+    """A texture larger than ``size`` as the mean of its seen texels over each k x k box, and where any is seen."""
+    n = seen.shape[0]
+    if n == size:
+        return albedo, seen
+    k = n // size
+    a = np.where(seen[..., None], albedo, 0).reshape(size, k, size, k, -1).sum(axis=(1, 3))
+    count = seen.reshape(size, k, size, k).sum(axis=(1, 3))
+    return a / np.maximum(count, 1)[..., None], count > 0
+
+
+def _scored(result, gt, inside):
+    albedo, seen = box_down(result.albedo, result.seen, gt.shape[0])
+    return scaled_rmse(albedo, gt, seen & inside).tolist()
+
+
 def evaluate(name, fixture_dir, size, sets, ceiling=True):
     record, inputs, bakes = load_case(name, fixture_dir)
-    gt, inside = truth(fixture_dir, record, size)
+    truth_size = min(size, record["albedo_gt"]["size"][0])
+    gt, inside = truth(fixture_dir, record, truth_size)
     row = {"fixture": name, "texture_size": size, "set": {k: repr(v) for k, v in sets.items()}}
     proj = run_project(inputs, bakes, size)
-    row["project"] = scaled_rmse(proj.albedo, gt, proj.seen & inside).tolist()
+    row["project"] = _scored(proj, gt, inside)
     ours, secs = run_ours(inputs, bakes, size, sets)
-    row["ours"] = scaled_rmse(ours.albedo, gt, ours.seen & inside).tolist()
+    row["ours"] = _scored(ours, gt, inside)
     row["ours_seconds"] = secs
     row["lam"] = ours.info.get("lam")
     row["lighting_variation"] = ours.info.get("lighting_variation")

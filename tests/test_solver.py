@@ -276,9 +276,18 @@ def test_a_texture_finer_than_the_photos_is_solved_coarser_and_sampled_up():
 
 
 @pytest.mark.parametrize("albedo_lam", [None, 1.0])
-def test_the_same_result_on_any_number_of_threads(fixed, albedo_lam):
+def test_the_same_result_on_any_number_of_threads(fixed, albedo_lam, monkeypatch):
+    monkeypatch.setattr("core.solve.solver.SERIAL_OBSERVATIONS", 0)  # this problem is small: threads all the same
     params = SolverParams(lam=2.0, max_iter=8, coarse_iter=5, albedo_lam=albedo_lam, light_size=32, lighting="coupled")
     one = solve(fixed.problem, replace(params, threads=1))
     three = solve(fixed.problem, replace(params, threads=3))
     assert np.array_equal(one.texture, three.texture, equal_nan=True)
     assert np.array_equal(one.sigma, three.sigma) and one.energy == three.energy
+
+
+def test_small_problems_run_their_channels_in_one_thread():
+    from core.solve.solver import SERIAL_OBSERVATIONS, channel_threads
+
+    assert channel_threads(SolverParams(), 3, SERIAL_OBSERVATIONS - 1) == 1
+    assert channel_threads(SolverParams(), 3, SERIAL_OBSERVATIONS) == 3
+    assert channel_threads(SolverParams(threads=2), 3, 10 * SERIAL_OBSERVATIONS) == 2

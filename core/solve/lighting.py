@@ -276,6 +276,11 @@ COARSE_START_PIXELS = 3.0
 #: Iterations at most of that half-size solve, and the least size it is solved at.
 COARSE_START_ITER = 30
 COARSE_START_MIN_SIZE = 64
+#: Iterations of the texture itself once started from its half-size solve: it is finer than the photos resolve
+#: (fewer than COARSE_START_PIXELS pixels per texel), the half-size solve holds what they tell, and more
+#: iterations there only cost time (the 2K case: 8 iterations of 1.3 s; the 13 fixtures at 512² and the 2K case
+#: no less accurate with 1 or 2, docs/measurements.md).
+REFINE_ITER = 2
 
 
 def pixels_per_texel(problem) -> float:
@@ -305,12 +310,13 @@ def _half_size_start(problem, sigma, params, progress, cancel):
     Returns that texture (NaN where unseen) and a summary of the solve (its size and iterations).
     """
     quick = replace(params, max_iter=COARSE_START_ITER, min_iter=min(params.min_iter, COARSE_START_ITER))
-    coarse = solve_albedo(with_texture_size(problem, problem.texture.size // 2), sigma, quick, None, progress, cancel)
+    half = with_texture_size(problem, problem.texture.size // 2)
+    coarse = solve_albedo(half, sigma, quick, None, progress, cancel, refine_iter=None)
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
     return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
 
 
-def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None):
+def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None, refine_iter=REFINE_ITER):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
     Parameters
@@ -330,6 +336,9 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         from the start.
     d : Discretization, optional
         The problem's, if already built.
+    refine_iter : int or None
+        Iterations at most after a start from the half-size solve (None: as ``params`` says); the half-size
+        solves themselves run as ``params`` says.
 
     Returns
     -------
@@ -351,6 +360,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
                 None,
                 progress,
                 cancel,
+                refine_iter=refine_iter,
             )
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
@@ -362,6 +372,8 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         # Solved before this size's problem is built, so that the two are not held at once.
         half, coarse = _half_size_start(problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
         progress = sub_progress(progress, 0.3, 1.0)
+        if refine_iter is not None:
+            params = replace(params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter))
     t_build0 = time.perf_counter()
     if d is None:
         d = (
@@ -388,7 +400,7 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
     release_free_memory()  # the build's temporaries
     history = [sum(ch.e for ch in channels)]
     it = 0
-    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels))) as pool:
+    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), d.obs_pixel.size)) as pool:
         while it < params.max_iter:
             if cancel is not None and cancel():
                 raise Cancelled("cancelled by the user")
