@@ -316,7 +316,9 @@ def _half_size_start(problem, sigma, params, progress, cancel):
     return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
 
 
-def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None, refine_iter=REFINE_ITER):
+def solve_albedo(
+    problem, sigma: np.ndarray, params, rho0=None, progress=None, cancel=None, d=None, refine_iter=REFINE_ITER
+):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
     Parameters
@@ -373,7 +375,9 @@ def solve_albedo(problem, sigma: np.ndarray, params, rho0=None, progress=None, c
         half, coarse = _half_size_start(problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
         progress = sub_progress(progress, 0.3, 1.0)
         if refine_iter is not None:
-            params = replace(params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter))
+            params = replace(
+                params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter)
+            )
     t_build0 = time.perf_counter()
     if d is None:
         d = (
