@@ -291,3 +291,27 @@ def test_small_problems_run_their_channels_in_one_thread():
     assert channel_threads(SolverParams(), 3, SERIAL_OBSERVATIONS - 1) == 1
     assert channel_threads(SolverParams(), 3, SERIAL_OBSERVATIONS) == 3
     assert channel_threads(SolverParams(threads=2), 3, 10 * SERIAL_OBSERVATIONS) == 2
+
+
+def test_a_tv_edge_is_weighted_by_the_texel_side_it_crosses():
+    from core.solve.discretization import _grid_edges, _side_across
+
+    rng = np.random.default_rng(0)
+    size = 9
+    pos = np.cumsum(rng.uniform(0.5, 1.5, (size, size, 3)), axis=0) + np.cumsum(
+        rng.uniform(0.5, 1.5, (size, size, 3)), axis=1
+    )
+    pos[rng.random((size, size)) < 0.2] = np.nan  # texels outside the islands
+    a, b, horizontal = _grid_edges(np.isfinite(pos[..., 0]))
+    got = _side_across(pos.reshape(-1, 3).astype(np.float32), size, a, horizontal)
+    p = pos.astype(np.float32).astype(np.float64)
+    for t, h, g in zip(a, horizontal, got):
+        r, c = divmod(int(t), size)
+        dr, dc = (1, 0) if h else (0, 1)  # across a horizontal edge the side runs along the rows
+        near = [
+            np.linalg.norm(p[r, c] - p[r + s * dr, c + s * dc])
+            for s in (-1, 1)
+            if 0 <= r + s * dr < size and 0 <= c + s * dc < size
+        ]
+        near = [x for x in near if np.isfinite(x)]
+        assert (np.isnan(g) and not near) or g == pytest.approx(np.mean(near), rel=1e-12)

@@ -43,7 +43,6 @@ domain and the splat).
 from __future__ import annotations
 
 import threading
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -438,10 +437,9 @@ def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: flo
     seen[texels] = True
     seen = seen.reshape(size, size)
     a, b, horizontal = _grid_edges(seen)
-    pos = layout.texel_pos.reshape(-1, 3).astype(np.float64)
-    length = np.linalg.norm(pos[a] - pos[b], axis=1)
-    side = _texel_side_lengths(layout.texel_pos)
-    perp = np.where(horizontal, side[1].ravel()[a], side[0].ravel()[a])
+    pos = layout.texel_pos.reshape(-1, 3)
+    length = np.linalg.norm(pos[a].astype(np.float64) - pos[b], axis=1)
+    perp = _side_across(pos, size, a, horizontal)
     perp = np.where(np.isfinite(perp), perp, length)
     med = float(np.median(length)) if length.size else 1.0
     good = length <= max_edge_ratio * med
@@ -467,18 +465,25 @@ def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
     return obs_matrix, pixels, w_pix
 
 
-def _texel_side_lengths(texel_pos: np.ndarray):
-    """Surface length of each texel along u (columns) and along v (rows), NaN where unknown."""
-    p = texel_pos.astype(np.float64)
-    out = []
-    for axis in (1, 0):
-        d = np.linalg.norm(np.diff(p, axis=axis), axis=2)
-        pad_before = [(0, 0), (0, 0)]
-        pad_before[axis] = (1, 0)
-        pad_after = [(0, 0), (0, 0)]
-        pad_after[axis] = (0, 1)
-        both = np.stack([np.pad(d, pad_before, constant_values=np.nan), np.pad(d, pad_after, constant_values=np.nan)])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN texels stay NaN
-            out.append(np.nanmean(both, axis=0))
-    return out[0], out[1]
+def _side_across(pos: np.ndarray, size: int, a: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
+    """Surface length of texel ``a``'s side that the edge from it crosses, NaN where unknown.
+
+    That is the mean distance to its two neighbours across the edge (one at the texture's border): along v
+    (rows) for a horizontal edge, along u (columns) for a vertical one. ``pos`` is the ``(size * size, 3)``
+    texel positions; only the edges' texels are computed, not the whole grid.
+    """
+    out = np.empty(a.size)
+    for sel, step in ((horizontal, size), (~horizontal, 1)):
+        t = a[sel]
+        coord = t // size if step == size else t % size
+        first, last = coord == 0, coord == size - 1
+        here = pos[t].astype(np.float64)
+        before = np.linalg.norm(here - pos[np.where(first, t, t - step)], axis=1)
+        after = np.linalg.norm(pos[np.where(last, t, t + step)].astype(np.float64) - here, axis=1)
+        before[first] = np.nan
+        after[last] = np.nan
+        # The mean of the known ones, as np.nanmean sums them (without its copies); 0 / 0 where neither is.
+        kb, ka = np.isfinite(before), np.isfinite(after)
+        with np.errstate(invalid="ignore"):
+            out[sel] = (np.where(kb, before, 0.0) + np.where(ka, after, 0.0)) / (kb.astype(np.float64) + ka)
+    return out
