@@ -277,9 +277,8 @@ COARSE_START_PIXELS = 3.0
 COARSE_START_ITER = 30
 COARSE_START_MIN_SIZE = 64
 #: Iterations of the texture itself once started from its half-size solve: it is finer than the photos resolve
-#: (fewer than COARSE_START_PIXELS pixels per texel), the half-size solve holds what they tell, and more
-#: iterations there only cost time (the 2K case: 8 iterations of 1.3 s; the 13 fixtures at 512² and the 2K case
-#: no less accurate with 1 or 2, docs/measurements.md).
+#: (fewer than COARSE_START_PIXELS pixels per texel), the half-size solve holds what they tell, and running to
+#: the stopping rule there cost time without making the fixtures more accurate (docs/measurements.md).
 REFINE_ITER = 2
 
 

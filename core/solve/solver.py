@@ -268,8 +268,7 @@ class Result:
 
 
 #: Below this many observations the channels run in one thread: their steps are then short enough that the
-#: interpreter's lock, not the arithmetic, sets the pace (the 2K case's 32² lighting level, 25k observations,
-#: took 1.2 s in three threads and 0.9 s in one).
+#: interpreter's lock, not the arithmetic, sets the pace and threads only add waiting (docs/measurements.md).
 SERIAL_OBSERVATIONS = 150_000
 
 
