@@ -237,3 +237,59 @@ def test_the_lighting_stage_thins_dense_photos_and_the_albedo_stays_as_good():
     assert 0.2 < used < 0.3, used
     e_full, e_thin = _view_rmse(full, scene, problem), _view_rmse(thinned, scene, problem)
     assert np.all(e_thin < 1.2 * e_full + 0.005), (e_thin, e_full)
+
+
+def _joint_minimum(As, rs, pinned, g):
+    """The exact minimiser of ``sum_v x_v^T A_v x_v / 2 - r_v^T x_v`` over every view's SH and one sun strength t,
+    with ``x_v[-1] = g_v t`` and view 0's constant term held at ``pinned``: one linear system over all of them."""
+    m, k = rs.shape
+    free0 = [i for i in range(k - 1) if i != 3]
+    n = len(free0) + (m - 1) * (k - 1) + 1
+    P, c = np.zeros((m, k, n)), np.zeros((m, k))
+    P[0, free0, range(len(free0))] = 1
+    c[0, 3] = pinned
+    for v in range(1, m):
+        start = len(free0) + (v - 1) * (k - 1)
+        P[v, : k - 1, start : start + k - 1] = np.eye(k - 1)
+    P[:, k - 1, n - 1] = g
+    H = np.einsum("vki,vkl,vlj->ij", P, As, P)
+    b = np.einsum("vki,vk->i", P, rs - np.einsum("vkl,vl->vk", As, c))
+    z = np.linalg.solve(H, b)
+    return np.einsum("vki,i->vk", P, z) + c
+
+
+@pytest.mark.parametrize("sun", [0.7, -0.7])
+def test_the_coupled_step_minimises_the_sh_and_the_sun_together(sun):
+    # The sun column is nearly a combination of the SH columns (as a sun's smooth part is): minimising the two in
+    # turn crawls along that valley; the step is the exact minimum of both, the sun kept >= 0.
+    from core.solve.lighting import Coupling, _free
+
+    rng = np.random.default_rng(3)
+    m = 4
+    g = np.exp(0.2 * rng.standard_normal(m))
+    g[0] = 1.0
+    As, rs = [], []
+    for v in range(m):
+        X = rng.standard_normal((300, 10))
+        X[:, 9] = X[:, :9] @ rng.standard_normal(9) + 0.2 * rng.standard_normal(300)
+        x = np.append(rng.standard_normal(9), g[v] * sun)
+        if v == 0:
+            x[3] = 1.3  # the constant term held
+        As.append(X.T @ X)
+        rs.append(X.T @ (X @ x + 0.01 * rng.standard_normal(300)))
+    As, rs = np.stack(As), np.stack(rs)
+    start = np.zeros((m, 10))
+    start[0, 3] = 1.3
+    got = Coupling._with_sun(As, rs, start, g, _free(9))
+    if sun > 0:
+        want = _joint_minimum(As, rs, 1.3, g)
+    else:  # the unconstrained minimum has a negative sun: at t = 0 each view's SH is its own minimum
+        want = np.zeros((m, 10))
+        for v in range(m):
+            idx = _free(9) if v == 0 else np.arange(9)
+            r = rs[v, :9] - (As[v, :9, 3] * 1.3 if v == 0 else 0)
+            want[v, idx] = np.linalg.solve(As[v][np.ix_(idx, idx)], r[idx])
+        want[0, 3] = 1.3
+        assert _joint_minimum(As, rs, 1.3, g)[0, 9] < 0
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
+    assert got[0, 3] == 1.3 and np.allclose(got[:, 9] / g, got[0, 9])

@@ -202,23 +202,45 @@ class Coupling:
             # Each view's quadratic in its lighting: data majorant plus the prior towards g_v s.
             As = Ms + kG
             rs = [bs[v] + kG[v] @ (g[v] * s) for v in range(len(sigma))]
-            for v in range(len(sigma)):
-                A, r = As[v], rs[v]
-                if sun:  # the SH part with the sun's coefficient held
-                    r, A = r[:-1] - A[:-1, -1] * sigma[v, -1], A[:-1, :-1]
-                if v == 0:
-                    rhs = r[free] - A[free, 3] * sigma[0, 3]
-                    sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
-                else:
-                    sigma[v, : A.shape[0]] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
-            if sun:  # one sun for all views, times each view's gain: an exact 1-D minimisation, kept >= 0
-                num = den = 0.0
+            if sun:
+                sigma = self._with_sun(As, rs, sigma, g, free)
+            else:
                 for v in range(len(sigma)):
-                    num += g[v] * (rs[v][-1] - As[v][-1, :-1] @ sigma[v, :-1])
-                    den += g[v] * g[v] * As[v][-1, -1]
-                sigma[:, -1] = g * max(num / den, 0.0) if den > 0 else sigma[:, -1]
+                    A, r = As[v], rs[v]
+                    if v == 0:
+                        rhs = r[free] - A[free, 3] * sigma[0, 3]
+                        sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+                    else:
+                        sigma[v] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
             s, g = self._fit_world(sigma, s, g)
         return sigma, (s, g)
+
+    @staticmethod
+    def _with_sun(As, rs, sigma, g, free):
+        """Every view's SH and the one sun strength t (coefficient ``g_v t``), minimised jointly, t >= 0.
+
+        Each view's SH is eliminated (``x_v = X0_v - X1_v g_v t``), which leaves a 1-D quadratic in t: its
+        minimum, clamped at 0, is exact. SH and the sun overlap (the sun's smooth part is SH), so minimising
+        them in turn crawls along that valley and can end on either side of it.
+        """
+        sigma = np.array(sigma)
+        sols, num, den = [], 0.0, 0.0
+        for v in range(len(sigma)):
+            A, r = As[v], rs[v].copy()
+            idx = free if v == 0 else np.arange(A.shape[0] - 1)
+            if v == 0:  # its constant term is held: it pins the scale
+                r -= A[:, 3] * sigma[0, 3]
+            X = np.linalg.lstsq(A[np.ix_(idx, idx)], np.stack([r[idx], A[idx, -1]], axis=1), rcond=1e-10)[0]
+            q = A[-1, -1] - A[-1, idx] @ X[:, 1]
+            p = r[-1] - A[-1, idx] @ X[:, 0]
+            num += g[v] * p
+            den += g[v] * g[v] * q
+            sols.append((idx, X))
+        t = max(num / den, 0.0) if den > 0 else sigma[0, -1] / g[0]
+        for v, (idx, X) in enumerate(sols):
+            sigma[v, idx] = X[:, 0] - X[:, 1] * g[v] * t
+            sigma[v, -1] = g[v] * t
+        return sigma
 
 
 def _shade(d, sigma):
