@@ -293,3 +293,25 @@ def test_the_coupled_step_minimises_the_sh_and_the_sun_together(sun):
         assert _joint_minimum(As, rs, 1.3, g)[0, 9] < 0
     np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
     assert got[0, 3] == 1.3 and np.allclose(got[:, 9] / g, got[0, 9])
+
+
+@pytest.mark.parametrize("floor", [lighting.PRIOR_FLOOR, 0.0])
+def test_what_a_view_does_not_see_is_held_to_the_world_lighting(floor):
+    # View 1 sees the normals of a few flat faces: its pixels leave 5 of its 9 coefficients undetermined.
+    from core.solve.lighting import Coupling, prior_metric
+
+    rng = np.random.default_rng(4)
+    s = rng.standard_normal(9)
+    g = np.array([1.0, 0.8, 1.2])
+    X = [rng.standard_normal((200, 9)) for _ in range(3)]
+    X[1] = X[1] @ np.linalg.qr(rng.standard_normal((9, 4)))[0] @ rng.standard_normal((4, 9))
+    Ms = np.stack([x.T @ x for x in X])
+    bs = np.stack([M @ (gv * s) for M, gv in zip(Ms, g)])  # every view's pixels agree with g_v s
+    coupling = Coupling.__new__(Coupling)
+    coupling.kappa, coupling.G, coupling.world = 10.0, prior_metric(Ms, floor), (s, g)
+    start = np.zeros((3, 9))
+    start[0, 3] = s[3]
+    sigma, _ = coupling.step(Ms, bs, start)
+    assert np.allclose(sigma[[0, 2]], g[[0, 2], None] * s, atol=1e-6)
+    held = np.allclose(sigma[1], g[1] * s, atol=1e-6)
+    assert held == (floor > 0), sigma[1] - g[1] * s

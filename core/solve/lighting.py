@@ -48,6 +48,7 @@ __all__ = [
     "ALBEDO_LAMBDA",
     "choose_lighting",
     "Coupling",
+    "prior_metric",
     "shared_lighting_step",
     "split_gains",
     "solve_albedo",
@@ -146,6 +147,22 @@ def shared_lighting_step(
     return g[:, None] * s[None, :]
 
 
+#: The coupled prior's floor, relative to the mean eigenvalue of each view's metric (:func:`prior_metric`).
+PRIOR_FLOOR = 1e-3
+
+
+def prior_metric(G: np.ndarray, floor: float = PRIOR_FLOOR) -> np.ndarray:
+    """Each view's metric ``G_v`` plus ``floor`` times its mean eigenvalue on the diagonal.
+
+    A view that sees few normals (the flat faces of a building) leaves some of its lighting's coefficients
+    undetermined by its pixels; measured by ``G_v`` alone the prior leaves them free too, and they drift
+    far from any light, into the world lighting and, through the occlusion, into the albedo. The floor holds
+    them to the world lighting.
+    """
+    k = G.shape[-1]
+    return G + (floor * np.trace(G, axis1=-2, axis2=-1) / k)[:, None, None] * np.eye(k)
+
+
 class Coupling:
     """A prior that holds per-view lightings near one shared lighting: ``lighting="coupled"``.
 
@@ -153,7 +170,8 @@ class Coupling:
     where ``s`` is a world lighting and ``g_v`` a gain per view (``g_0 = 1``),
     both free, and ``G_v = Ibar^2 sum_p beta_p nu_p nu_p^T`` over the view's pixels
     (``Ibar`` the mean observed value): the squared difference of the two
-    shadings over the view, in the units of the data. ``kappa = 0`` is the
+    shadings over the view, in the units of the data, with a floor
+    (:func:`prior_metric`) for what the view does not see. ``kappa = 0`` is the
     paper's free lighting per view, ``kappa -> inf`` the shared one.
 
     With a sun term (a transfer of :data:`core.solve.problem.SUN_COLUMNS`), the
@@ -169,10 +187,11 @@ class Coupling:
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
         k = d.nu.shape[1]
-        self.G = np.empty((d.n_views, k, k))
+        G = np.empty((d.n_views, k, k))
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            self.G[v] = ibar2 * unpack_products(beta[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+            G[v] = ibar2 * unpack_products(beta[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        self.G = prior_metric(G)
         self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
 
     def _fit_world(self, sigma, s, g, rounds=3):
