@@ -48,6 +48,7 @@ __all__ = [
     "ALBEDO_LAMBDA",
     "choose_lighting",
     "Coupling",
+    "per_view_lighting_step",
     "prior_metric",
     "shared_lighting_step",
     "split_gains",
@@ -97,6 +98,19 @@ def split_gains(sigma_views: np.ndarray):
     g = sigma_views @ sigma / nn if nn > 0 else np.ones(len(sigma_views))
     g[0] = 1.0
     return sigma, g
+
+
+def per_view_lighting_step(Ms: np.ndarray, bs: np.ndarray, sigma_views: np.ndarray) -> np.ndarray:
+    """Each view's lighting minimising ``s^T M_v s - 2 b_v^T s``, view 0's constant term held (it pins the scale)."""
+    sigma = np.array(sigma_views, dtype=np.float64)
+    free = _free(sigma.shape[1])
+    for v, (M, b) in enumerate(zip(Ms, bs)):
+        if v == 0:
+            rhs = b[free] - M[free, 3] * sigma[0, 3]
+            sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
+        else:
+            sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
+    return sigma
 
 
 def shared_lighting_step(
@@ -221,16 +235,7 @@ class Coupling:
             # Each view's quadratic in its lighting: data majorant plus the prior towards g_v s.
             As = Ms + kG
             rs = [bs[v] + kG[v] @ (g[v] * s) for v in range(len(sigma))]
-            if sun:
-                sigma = self._with_sun(As, rs, sigma, g, free)
-            else:
-                for v in range(len(sigma)):
-                    A, r = As[v], rs[v]
-                    if v == 0:
-                        rhs = r[free] - A[free, 3] * sigma[0, 3]
-                        sigma[0, free] = np.linalg.lstsq(A[np.ix_(free, free)], rhs, rcond=1e-10)[0]
-                    else:
-                        sigma[v] = np.linalg.lstsq(A, r, rcond=1e-10)[0]
+            sigma = self._with_sun(As, rs, sigma, g, free) if sun else per_view_lighting_step(As, rs, sigma)
             s, g = self._fit_world(sigma, s, g)
         return sigma, (s, g)
 

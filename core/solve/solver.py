@@ -479,7 +479,9 @@ class _Channel:
         elif self.lighting == "coupled":
             sigma, world = self.coupling.step(Ms, bs, self.sigma)
         else:
-            sigma = self._per_view_sigma(Ms, bs)
+            from .lighting import per_view_lighting_step
+
+            sigma = per_view_lighting_step(Ms, bs, self.sigma)
         if sigma.shape[1] == SUN_COLUMNS:  # the last column is a sun term (Problem.transfer): no negative sun
             sigma = np.array(sigma)
             sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
@@ -491,18 +493,6 @@ class _Channel:
             if world is not None:
                 self.coupling.world = world
             self.e = e
-
-    def _per_view_sigma(self, Ms, bs):
-        sigma = self.sigma.copy()
-        for v, (M, b) in enumerate(zip(Ms, bs)):
-            if v == 0:
-                # Pin the scale: the constant term of view 0 stays fixed.
-                free = np.delete(np.arange(M.shape[0]), 3)
-                rhs = b[free] - M[free, 3] * sigma[0, 3]
-                sigma[0, free] = np.linalg.lstsq(M[np.ix_(free, free)], rhs, rcond=1e-10)[0]
-            else:
-                sigma[v] = np.linalg.lstsq(M, b, rcond=1e-10)[0]
-        return sigma
 
     def step(self):
         before = self.rho
