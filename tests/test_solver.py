@@ -236,6 +236,7 @@ def test_cancel_and_progress(varying):
         dict(delta=0),
         dict(extrapolate=-1),
         dict(extrapolate=float("nan")),
+        dict(light_extrapolate=-1),
         dict(data_model="bilinear"),
         dict(light_data_model="splats"),
         dict(max_texels_per_pixel=-1),

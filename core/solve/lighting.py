@@ -499,7 +499,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
 
     Solved on a texture of at most ``params.light_size`` (the lighting has 9
     coefficients per view and channel; it needs no fine texels) with the data
-    model ``params.light_data_model``, started from rho = I, and, when
+    model ``params.light_data_model`` and extrapolation ``params.light_extrapolate``, started from rho = I, and, when
     ``params.light_edges > 0`` (texture domain), solved again with the albedo
     edges it found freed (:func:`core.solve.edges.reweighted_lighting`).
 
@@ -520,7 +520,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_problem = with_texture_size(problem, params.light_size)
     if params.domain == "texture" and params.light_pixels > 0:
         light_problem = thinned_for_lighting(light_problem, params.light_pixels)
-    light_params = replace(params.resolved(), albedo_lam=None)
+    light_params = replace(params.resolved(), albedo_lam=None, extrapolate=params.light_extrapolate)
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"

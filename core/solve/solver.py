@@ -139,6 +139,10 @@ class SolverParams:
         Two stages, texture domain: while the lighting stage's texture has more than this many photo pixels on
         the mesh per texel, it keeps every other pixel of every other row (:func:`core.solve.pyramid.coarsen`);
         0 keeps them all.
+    light_extrapolate : float
+        Two stages: ``extrapolate`` in the lighting stage. Its MM alternates the albedo and the lighting and runs
+        to its iteration caps, where a longer step along the albedo's direction pays; the albedo stage (a convex
+        problem under a fixed lighting) keeps ``extrapolate`` (docs/measurements.md).
     light_data_model : {"nearest", "splat", "interpolate"}
         Two stages, texture domain: the lighting stage's data model (see
         ``data_model``); "nearest" gives each pixel one observation, of its
@@ -182,6 +186,7 @@ class SolverParams:
     light_pixels: float = 128.0
     light_edges: float = 0.003
     light_data_model: str = "nearest"
+    light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
 
     def resolved(self) -> SolverParams:
@@ -212,8 +217,10 @@ class SolverParams:
             raise ValueError("solver: delta must be > 0")
         if self.max_iter < 1 or (self.cg_iter is not None and self.cg_iter < 1):
             raise ValueError("solver: max_iter and cg_iter must be >= 1")
-        if not np.isfinite(self.extrapolate) or self.extrapolate < 0:
-            raise ValueError(f"solver: extrapolate must be finite and >= 0, got {self.extrapolate}")
+        for name in ("extrapolate", "light_extrapolate"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
         if not np.isfinite(self.max_texels_per_pixel) or self.max_texels_per_pixel < 0:
             raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
