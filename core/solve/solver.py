@@ -209,7 +209,18 @@ class SolverParams:
                 raise ValueError(
                     f"solver: {name} must be 'interpolate', 'splat' or 'nearest', got {getattr(self, name)!r}"
                 )
-        for name in ("lam", "mu", "delta"):
+        for name in (
+            "lam",
+            "mu",
+            "delta",
+            "coupling",
+            "extrapolate",
+            "light_extrapolate",
+            "max_texels_per_pixel",
+            "light_edges",
+            "albedo_edges",
+            "light_pixels",
+        ):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
@@ -217,26 +228,14 @@ class SolverParams:
             raise ValueError("solver: delta must be > 0")
         if self.max_iter < 1 or (self.cg_iter is not None and self.cg_iter < 1):
             raise ValueError("solver: max_iter and cg_iter must be >= 1")
-        for name in ("extrapolate", "light_extrapolate"):
-            v = getattr(self, name)
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
-        if not np.isfinite(self.max_texels_per_pixel) or self.max_texels_per_pixel < 0:
-            raise ValueError(f"solver: max_texels_per_pixel must be finite and >= 0, got {self.max_texels_per_pixel}")
         if self.levels < 1 or self.coarse_iter < 1:
             raise ValueError("solver: levels and coarse_iter must be >= 1")
         if self.lighting not in ("per_view", "shared", "coupled", "fixed"):
             raise ValueError(
                 f"solver: lighting must be 'per_view', 'shared', 'coupled' or 'fixed', got {self.lighting!r}"
             )
-        if not np.isfinite(self.coupling) or self.coupling < 0:
-            raise ValueError(f"solver: coupling must be finite and >= 0, got {self.coupling}")
         if self.albedo_lam is not None and (not np.isfinite(self.albedo_lam) or self.albedo_lam < 0):
             raise ValueError(f"solver: albedo_lam must be None or finite and >= 0, got {self.albedo_lam}")
-        for name in ("light_edges", "albedo_edges", "light_pixels"):
-            v = getattr(self, name)
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
