@@ -1,7 +1,7 @@
 import numpy as np
 
 from core.solve.huber import huber, majorant, mm_weight
-from core.solve.sh import sh_basis, sh_products, unpack_products
+from core.solve.sh import sh_basis, weighted_gram
 
 
 def test_sh_basis_matches_closed_form():
@@ -14,12 +14,15 @@ def test_sh_basis_matches_closed_form():
         np.testing.assert_allclose(row, expected, rtol=1e-12, atol=1e-12)
 
 
-def test_sh_products_give_the_outer_product():
+def test_weighted_gram_sums_the_weighted_outer_products():
     rng = np.random.default_rng(2)
-    nu = rng.standard_normal((7, 9))
+    nu = rng.standard_normal((7, 10))
     w = rng.random(7)
-    M = unpack_products(w @ sh_products(nu))
-    np.testing.assert_allclose(M, (nu * w[:, None]).T @ nu, rtol=1e-12)
+    M = weighted_gram(nu, w)
+    np.testing.assert_allclose(M, sum(wp * np.outer(n, n) for wp, n in zip(w, nu)), rtol=1e-12)
+    M32 = weighted_gram(nu.astype(np.float32), w)
+    assert M32.dtype == np.float32
+    np.testing.assert_allclose(M32, M, rtol=1e-5)
 
 
 def test_majorant_is_above_huber_and_touches_at_x0():

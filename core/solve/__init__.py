@@ -17,7 +17,7 @@ from .lambda_choice import (
 from .multigrid import Hierarchy, block_grid, surface_grid
 from .problem import Correspondences, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import DIFFUSE, SH_BASIS_NAMES, sh_basis, sh_products
+from .sh import DIFFUSE, SH_BASIS_NAMES, sh_basis, weighted_gram
 from .solver import Result, SolverParams, energy, solve
 from .spmv import matvec_into
 
@@ -26,7 +26,7 @@ __all__ = [
     "TextureLayout",
     "Problem",
     "sh_basis",
-    "sh_products",
+    "weighted_gram",
     "DIFFUSE",
     "SH_BASIS_NAMES",
     "huber",

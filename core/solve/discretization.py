@@ -51,7 +51,7 @@ import scipy.sparse as sp
 from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels
 from .problem import Problem, stacked_rows
-from .sh import sh_basis, sh_products
+from .sh import sh_basis
 from .spmv import PairNormal, matvec_into
 
 __all__ = ["Discretization", "image_domain", "texture_domain"]
@@ -92,22 +92,10 @@ class Discretization:
         view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
         return view_of_pixel[self.obs_pixel]
 
-    @property
-    def nu_products(self) -> np.ndarray:
-        """(P, 45) float32 products of the SH basis (:func:`core.solve.sh.sh_products`), made on first use.
-
-        Only the sigma-step needs them; a solve under a fixed lighting never pays for them.
-        """
-        with self._lock:
-            if self._products is None:
-                self._products = sh_products(self.nu)
-        return self._products
-
     def __post_init__(self):
         self._matrices = None
         self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
         self._pair = None
-        self._products = None
         self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
         self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 

@@ -38,7 +38,7 @@ from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
-from .sh import unpack_products
+from .sh import weighted_gram
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
 #: fixtures (docs/measurements.md).
@@ -200,11 +200,10 @@ class Coupling:
         values = d.from_pixels(d.values[:, c]).astype(np.float64)
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
-        k = d.nu.shape[1]
-        G = np.empty((d.n_views, k, k))
+        G = np.empty((d.n_views, d.nu.shape[1], d.nu.shape[1]))
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            G[v] = ibar2 * unpack_products(beta[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+            G[v] = ibar2 * weighted_gram(d.nu[lo:hi].astype(np.float64), beta[lo:hi])
         self.G = prior_metric(G)
         self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
 
@@ -586,7 +585,7 @@ def _ls_equations(d, rho, c):
     Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
     for v in range(d.n_views):
         lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        Ms[v] = unpack_products(g[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        Ms[v] = weighted_gram(d.nu[lo:hi].astype(np.float64), g[lo:hi])
         bs[v] = h[lo:hi] @ d.nu[lo:hi].astype(np.float64)
     return Ms, bs
 

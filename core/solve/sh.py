@@ -8,16 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sh_basis", "sh_products", "unpack_products", "sh_degree", "diffuse", "DIFFUSE", "SH_BASIS_NAMES"]
+__all__ = ["sh_basis", "weighted_gram", "sh_degree", "diffuse", "DIFFUSE", "SH_BASIS_NAMES"]
 
 #: What each of the 9 coefficients multiplies, for files that record lighting (n: unit world normal).
 SH_BASIS_NAMES = ("n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1")
 
 #: The lighting of the trivial solution: ambient only (eq. sigma_naive).
 DIFFUSE = np.array([0, 0, 0, 1, 0, 0, 0, 0, 0], dtype=np.float64)
-
-# Upper-triangle index pairs of the 9x9 products, in row-major order (45 of them).
-_IU = np.triu_indices(9)
 
 
 def sh_basis(normals: np.ndarray, dtype=np.float32, order: int = 2) -> np.ndarray:
@@ -73,26 +70,10 @@ def diffuse(k: int = 9) -> np.ndarray:
     return out
 
 
-def sh_products(nu: np.ndarray) -> np.ndarray:
-    """The ``K (K + 1) / 2`` distinct products ``nu_a nu_b`` (a <= b) per row; 45 for the paper's K = 9.
+def weighted_gram(nu: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``sum_p w_p nu_p nu_p^T``: the ``(K, K)`` normal matrix of a lighting fit over rows ``nu`` with weights ``w``.
 
-    Precomputed once so that the sigma-step's KxK normal matrix is one
-    matrix-vector product per view: ``M = unpack(w @ products)``.
+    One matrix product in nu's precision (BLAS), which reads nu once: the sigma-step makes one per view and
+    channel every iteration.
     """
-    # Column by column from contiguous rows of nu^T: fancy indexing along axis 1 is far slower.
-    cols = np.ascontiguousarray(np.asarray(nu).T)
-    iu = np.triu_indices(cols.shape[0])
-    out = np.empty((cols.shape[1], iu[0].size), dtype=cols.dtype)
-    for k, (a, b) in enumerate(zip(*iu)):
-        np.multiply(cols[a], cols[b], out=out[:, k])
-    return out
-
-
-def unpack_products(packed: np.ndarray) -> np.ndarray:
-    """Symmetric ``(..., K, K)`` matrices from their ``K (K + 1) / 2`` upper-triangle entries."""
-    k = int(round((np.sqrt(8 * packed.shape[-1] + 1) - 1) / 2))
-    iu = _IU if k == 9 else np.triu_indices(k)
-    out = np.zeros(packed.shape[:-1] + (k, k), dtype=packed.dtype)
-    out[..., iu[0], iu[1]] = packed
-    out[..., iu[1], iu[0]] = packed
-    return out
+    return (nu * w[:, None].astype(nu.dtype, copy=False)).T @ nu

@@ -13,8 +13,7 @@ current point, then
    squares, by CG warm-started from the current rho, preconditioned by
    aggregation multigrid in the image domain (:mod:`core.solve.multigrid`) and by
    Jacobi in the texture domain;
-2. sigma-step: one 9x9 weighted least squares per view and channel, from the
-   45 precomputed products of the SH basis.
+2. sigma-step: one 9x9 weighted least squares per view and channel.
 
 Both steps can only lower the majorant, so the energy never increases; a
 step that would raise it through float32 round-off is rejected. The channels
@@ -58,7 +57,7 @@ from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import diffuse, unpack_products
+from .sh import diffuse, weighted_gram
 from .spmv import matvec_into
 
 __all__ = ["SolverParams", "Result", "solve", "energy"]
@@ -468,8 +467,8 @@ class _Channel:
         for v in range(d.n_views):
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
             # float32 products (BLAS); the energy check in sigma_step guards the result.
-            Ms[v] = unpack_products((g[lo:hi].astype(np.float32) @ d.nu_products[lo:hi]).astype(np.float64))
-            bs[v] = (h[lo:hi].astype(np.float32) @ d.nu[lo:hi]).astype(np.float64)
+            Ms[v] = weighted_gram(d.nu[lo:hi], g[lo:hi])
+            bs[v] = h[lo:hi].astype(np.float32) @ d.nu[lo:hi]
         return Ms, bs
 
     def sigma_step(self):
@@ -872,6 +871,6 @@ def _sigma_blocks(d: Discretization, w, r, rho_o):
     g_sigma = np.empty(9 * d.n_views)
     for v in range(d.n_views):
         lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        S[v] = unpack_products(p_w[lo:hi] @ d.nu_products[lo:hi].astype(np.float64))
+        S[v] = weighted_gram(d.nu[lo:hi].astype(np.float64), p_w[lo:hi])
         g_sigma[9 * v : 9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
     return S, g_sigma
