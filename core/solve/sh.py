@@ -74,6 +74,7 @@ def weighted_gram(nu: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``sum_p w_p nu_p nu_p^T``: the ``(K, K)`` normal matrix of a lighting fit over rows ``nu`` with weights ``w``.
 
     One matrix product in nu's precision (BLAS), which reads nu once: the sigma-step makes one per view and
-    channel every iteration.
+    channel every iteration. ``np.dot``, not ``@``: NumPy's matmul holds the GIL, and the channels' threads
+    then wait on each other (docs/measurements.md).
     """
-    return (nu * w[:, None].astype(nu.dtype, copy=False)).T @ nu
+    return np.dot((nu * w[:, None].astype(nu.dtype, copy=False)).T, nu)

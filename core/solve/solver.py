@@ -296,7 +296,7 @@ def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarr
     out = np.empty(d.nu.shape[0], dtype=dtype)
     for v in range(d.n_views):
         a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        out[a:b] = d.nu[a:b] @ sigma[v].astype(dtype)
+        out[a:b] = np.dot(d.nu[a:b], sigma[v].astype(dtype))  # np.dot releases the GIL, @ does not
     return out
 
 
@@ -468,7 +468,7 @@ class _Channel:
             lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
             # float32 products (BLAS); the energy check in sigma_step guards the result.
             Ms[v] = weighted_gram(d.nu[lo:hi], g[lo:hi])
-            bs[v] = h[lo:hi].astype(np.float32) @ d.nu[lo:hi]
+            bs[v] = np.dot(h[lo:hi].astype(np.float32), d.nu[lo:hi])  # np.dot releases the GIL, @ does not
         return Ms, bs
 
     def sigma_step(self):
