@@ -38,7 +38,8 @@ from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
-from .sh import weighted_gram
+from .sh import view_normal_equations
+from .solver import _shading
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
 #: fixtures (docs/measurements.md).
@@ -200,11 +201,7 @@ class Coupling:
         values = d.from_pixels(d.values[:, c]).astype(np.float64)
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
-        G = np.empty((d.n_views, d.nu.shape[1], d.nu.shape[1]))
-        for v in range(d.n_views):
-            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            G[v] = ibar2 * weighted_gram(d.nu[lo:hi].astype(np.float64), beta[lo:hi])
-        self.G = prior_metric(G)
+        self.G = prior_metric(ibar2 * view_normal_equations(d.nu, d.pixel_offsets, beta)[0])
         self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
 
     def _fit_world(self, sigma, s, g, rounds=3):
@@ -266,15 +263,6 @@ class Coupling:
         return sigma
 
 
-def _shade(d, sigma):
-    """Shading ``sigma_v . nu_p`` per pixel (float64); sigma is (m, 9)."""
-    out = np.empty(d.nu.shape[0])
-    for v in range(d.n_views):
-        a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        out[a:b] = d.nu[a:b].astype(np.float64) @ sigma[v]
-    return out
-
-
 def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
     """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
     pos = shade[shade > 0]
@@ -297,7 +285,7 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
     out = np.empty((d.n_unknowns, C), np.float32)
     w = d.obs_weight.astype(np.float64)
     for c in range(C):
-        a = d.from_pixels(floored(_shade(d, sigma[:, c])))
+        a = d.from_pixels(floored(_shading(d, sigma[:, c], np.float64)))
         num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
         den = d.scatter(w * a * a)
         out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
@@ -614,13 +602,7 @@ def _ls_equations(d, rho, c):
     npix = d.nu.shape[0]
     g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
     h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * d.values[:, c]
-    k = d.nu.shape[1]
-    Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
-    for v in range(d.n_views):
-        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        Ms[v] = weighted_gram(d.nu[lo:hi].astype(np.float64), g[lo:hi])
-        bs[v] = h[lo:hi] @ d.nu[lo:hi].astype(np.float64)
-    return Ms, bs
+    return view_normal_equations(d.nu, d.pixel_offsets, g, h)
 
 
 def fit_lighting(d, rho: np.ndarray, lighting: str = "per_view", rounds: int = 50) -> np.ndarray:
@@ -658,8 +640,8 @@ def shading_error(d, sigma: np.ndarray, reference: np.ndarray) -> np.ndarray:
     w = d.obs_weight.astype(np.float64)
     out = np.empty(C)
     for c in range(C):
-        s = d.from_pixels(_shade(d, sigma[:, c]))
-        r = d.from_pixels(_shade(d, reference[:, c]))
+        s = d.from_pixels(_shading(d, sigma[:, c], np.float64))
+        r = d.from_pixels(_shading(d, reference[:, c], np.float64))
         k = np.sum(w * s * r) / max(np.sum(w * s * s), 1e-30)
         out[c] = np.sqrt(np.sum(w * (k * s - r) ** 2) / max(np.sum(w * r * r), 1e-30))
     return out

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sh_basis", "weighted_gram", "sh_degree", "diffuse", "DIFFUSE", "SH_BASIS_NAMES"]
+__all__ = ["sh_basis", "weighted_gram", "view_normal_equations", "sh_degree", "diffuse", "DIFFUSE", "SH_BASIS_NAMES"]
 
 #: What each of the 9 coefficients multiplies, for files that record lighting (n: unit world normal).
 SH_BASIS_NAMES = ("n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1")
@@ -78,3 +78,20 @@ def weighted_gram(nu: np.ndarray, w: np.ndarray) -> np.ndarray:
     then wait on each other (docs/measurements.md).
     """
     return np.dot((nu * w[:, None].astype(nu.dtype, copy=False)).T, nu)
+
+
+def view_normal_equations(nu, offsets, g, h=None, dtype=np.float64):
+    """Per view v (rows ``offsets[v]:offsets[v + 1]``): ``sum_p g_p nu_p nu_p^T`` and ``sum_p h_p nu_p``.
+
+    Computed in ``dtype`` (float32: the sigma-step's BLAS products); returned as float64 arrays ``(m, K, K)``
+    and ``(m, K)``, the latter unset when ``h`` is None.
+    """
+    m, k = len(offsets) - 1, nu.shape[1]
+    Ms, bs = np.empty((m, k, k)), np.empty((m, k))
+    for v in range(m):
+        lo, hi = offsets[v], offsets[v + 1]
+        rows = nu[lo:hi].astype(dtype, copy=False)
+        Ms[v] = weighted_gram(rows, g[lo:hi])
+        if h is not None:
+            bs[v] = np.dot(h[lo:hi].astype(dtype, copy=False), rows)  # np.dot releases the GIL, @ does not
+    return Ms, bs

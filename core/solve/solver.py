@@ -57,7 +57,7 @@ from .huber import huber_inplace, mm_weight
 from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import diffuse, weighted_gram
+from .sh import diffuse, view_normal_equations
 from .spmv import matvec_into
 
 __all__ = ["SolverParams", "Result", "solve", "energy"]
@@ -462,14 +462,8 @@ class _Channel:
         h = d.pixel_sum(wr) * self.values
         wr *= rho_o
         g = d.pixel_sum(wr)
-        k = d.nu.shape[1]
-        Ms, bs = np.empty((d.n_views, k, k)), np.empty((d.n_views, k))
-        for v in range(d.n_views):
-            lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-            # float32 products (BLAS); the energy check in sigma_step guards the result.
-            Ms[v] = weighted_gram(d.nu[lo:hi], g[lo:hi])
-            bs[v] = np.dot(h[lo:hi].astype(np.float32), d.nu[lo:hi])  # np.dot releases the GIL, @ does not
-        return Ms, bs
+        # float32 products (BLAS); the energy check in sigma_step guards the result.
+        return view_normal_equations(d.nu, d.pixel_offsets, g, h, np.float32)
 
     def sigma_step(self):
         if self.lighting == "fixed":
@@ -867,10 +861,5 @@ def _sigma_blocks(d: Discretization, w, r, rho_o):
     npix = d.nu.shape[0]
     p_w = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
     p_r = np.bincount(d.obs_pixel, weights=w * r * rho_o, minlength=npix)
-    S = np.empty((d.n_views, 9, 9))
-    g_sigma = np.empty(9 * d.n_views)
-    for v in range(d.n_views):
-        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        S[v] = weighted_gram(d.nu[lo:hi].astype(np.float64), p_w[lo:hi])
-        g_sigma[9 * v : 9 * v + 9] = p_r[lo:hi] @ d.nu[lo:hi].astype(np.float64)
-    return S, g_sigma
+    S, g_sigma = view_normal_equations(d.nu, d.pixel_offsets, p_w, p_r)
+    return S, g_sigma.ravel()
