@@ -184,7 +184,7 @@ def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixel
     # Measured 0.044 and 0.066.
     assert error(half) < 0.8 * error(direct), (error(half), error(direct))
     # From that start it runs REFINE_ITER iterations: here, where the stopping rule would take 50, at a cost
-    # (measured 0.0463 against 0.0429; with 1 iteration 0.0465, and 0.0505 against 0.0413 at noise 0.02).
+    # (measured 0.0439 against 0.0398).
     assert half.iterations == lighting.REFINE_ITER
     monkeypatch.setattr(lighting, "COARSE_START_PIXELS", 3.0)
     converged = solve_albedo(problem, scene.sigma, params, refine_iter=None)

@@ -121,6 +121,28 @@ def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured)
     np.testing.assert_allclose(chosen, best, rtol=1e-6)
 
 
+def test_merged_gives_one_observation_per_texel_and_view_and_keeps_a_constant_albedo_exact():
+    sc = sphere_scene(n_views=4, height=60, width=80, texture_size=16, n_cells=1, seed=2)
+    splat = texture_domain(sc.problem, data_model="splat")
+    merged = texture_domain(sc.problem, data_model="merged")
+    # One observation for each (view, texel) pair of the splats, carrying their weight.
+    view = np.searchsorted(splat.pixel_offsets, splat.obs_pixel, side="right") - 1
+    pairs = np.unique(view * splat.n_unknowns + splat.obs_unknown)
+    assert merged.obs_pixel.size == pairs.size < splat.obs_pixel.size / 3
+    assert merged.n_views == splat.n_views and np.array_equal(merged.texel_index, splat.texel_index)
+    np.testing.assert_allclose(
+        merged.scatter(merged.obs_weight.astype(np.float64)),
+        splat.scatter(splat.obs_weight.astype(np.float64)),
+        rtol=1e-5,
+    )
+    # The shading is linear in the transfer, so a constant albedo fits the merged pixels as it fits the pixels.
+    rho = sc.albedo_texture.reshape(-1, 3)[merged.texel_index]
+    at_truth = energy(merged, rho, sc.sigma, lam=0.0, mu=0.0, delta=1e-4)
+    assert at_truth < 1e-4 * energy(merged, 1.1 * rho, sc.sigma, lam=0.0, mu=0.0, delta=1e-4)
+    with pytest.raises(ValueError, match="data_model"):
+        texture_domain(sc.problem, data_model="mean")
+
+
 def test_plain_alternation_stalls_where_gauss_newton_does_not(textured):
     # Why the joint step exists: from rho = I, alternating MM barely moves on this problem.
     p = SolverParams(lam=0.01, delta=1e-4, levels=1, max_iter=40, min_iter=40)

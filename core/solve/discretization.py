@@ -35,6 +35,13 @@ land on the same texel *are* the correspondences. Three data models:
   two-stage solve's lighting stage uses it (``light_data_model``): at 128^2
   the lighting does not need the texel-scale detail the albedo stage does
   (docs/measurements.md).
+* ``"merged"``: the splats of one view on one texel as one observation, of
+  their weighted mean value and transfer (a virtual pixel) and their summed
+  weight. Exact where the albedo is constant over them, since the shading is
+  linear in the transfer; what differs between the pixels is below the
+  texel's scale. The albedo stage's half-size starts use it, at sizes
+  coarser than the photos, where it cuts the observations 3-9 times. It
+  has no per-pixel maps (:func:`core.solve.solver._outputs` gives none).
 
 In all, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).
@@ -342,11 +349,17 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     """
     if problem.texture is None or problem.uv is None:
         raise ValueError("texture domain: the problem needs uv and a texture layout")
-    if data_model not in ("interpolate", "splat", "nearest"):
-        raise ValueError(f"texture domain: data_model must be 'interpolate', 'splat' or 'nearest', got {data_model!r}")
+    if data_model not in ("interpolate", "splat", "nearest", "merged"):
+        raise ValueError(
+            f"texture domain: data_model must be 'interpolate', 'splat', 'nearest' or 'merged', got {data_model!r}"
+        )
     size = problem.texture.size
     offsets, values, nu = _masked_pixels(problem)
     tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest")
+    if data_model == "merged":
+        offsets, values, nu, tex_obs, pix_obs, w_obs = _merged_per_view(
+            offsets, values, nu, tex_obs, pix_obs, w_obs, size
+        )
     seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
     texels = np.flatnonzero(seen_count > 0)
     lut = np.full(size * size, -1, dtype=np.intp)
@@ -411,6 +424,44 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):
     if tex_obs.size == 0:
         raise ValueError("texture domain: no pixel lands inside the UV islands")
     return tex_obs, np.concatenate(pix_obs), np.concatenate(w_obs).astype(np.float64)
+
+
+def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size):
+    """The splats of each view summed per texel into one virtual pixel: its weighted mean value and transfer.
+
+    ``pix_obs`` runs view by view (as :func:`_splats` makes it); ``size`` is the texture's. Returns the
+    virtual pixels' offsets per view, values and transfer, and one observation of each: texel, pixel and
+    summed weight.
+    """
+    new_offsets = np.zeros_like(offsets)
+    vals, nus, texs, ws = [], [], [], []
+    bounds = np.searchsorted(pix_obs, offsets)
+    group_of = np.zeros(size * size, np.intp)
+    for v in range(len(offsets) - 1):
+        lo, hi, a, b = bounds[v], bounds[v + 1], offsets[v], offsets[v + 1]
+        present = np.zeros(size * size, bool)
+        present[tex_obs[lo:hi]] = True
+        texels = np.flatnonzero(present)
+        group_of[texels] = np.arange(texels.size)
+        group = group_of[tex_obs[lo:hi]]
+        wsum = np.bincount(group, weights=w_obs[lo:hi], minlength=texels.size)
+        # Rows of weights over the view's pixels: one sparse product sums their values and transfer.
+        weights = (w_obs[lo:hi] / wsum[group]).astype(np.float32)
+        merge = sp.csr_matrix((weights, (group, pix_obs[lo:hi] - a)), shape=(texels.size, b - a))
+        vals.append(merge @ values[a:b])
+        nus.append(merge @ nu[a:b])
+        texs.append(texels)
+        ws.append(wsum)
+        new_offsets[v + 1] = new_offsets[v] + texels.size
+    n = int(new_offsets[-1])
+    return (
+        new_offsets,
+        np.concatenate(vals),
+        np.concatenate(nus),
+        np.concatenate(texs),
+        np.arange(n),
+        np.concatenate(ws),
+    )
 
 
 def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: float):

@@ -356,7 +356,7 @@ def _half_size_start(problem, sigma, params, progress, cancel):
     )
     half = with_texture_size(problem, problem.texture.size // 2)
     warm = COARSE_START_DELTA_FACTOR * params.delta
-    coarse = solve_albedo(half, sigma, quick, None, progress, cancel, refine_iter=None, warm_delta=warm)
+    coarse = solve_albedo(half, sigma, quick, None, progress, cancel, refine_iter=None, warm_delta=warm, merged=True)
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
     return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
 
@@ -371,6 +371,7 @@ def solve_albedo(
     d=None,
     refine_iter=REFINE_ITER,
     warm_delta=None,
+    merged=False,
 ):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
@@ -398,6 +399,9 @@ def solve_albedo(
         First run the MM with this Huber parameter to the stopping rule (at least :data:`WARM_MIN_ITER`
         iterations), then with ``params.delta``; ``max_iter`` bounds the two together, and the returned
         energies are the second run's.
+    merged : bool
+        Texture domain: the "merged" data model (one observation per texel and photo), with no per-view maps
+        in the result; the half-size starts use it.
 
     Returns
     -------
@@ -421,6 +425,7 @@ def solve_albedo(
                 cancel,
                 refine_iter=refine_iter,
                 warm_delta=warm_delta,
+                merged=merged,
             )
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
@@ -439,7 +444,7 @@ def solve_albedo(
     t_build0 = time.perf_counter()
     if d is None:
         d = (
-            texture_domain(problem, data_model=params.data_model)
+            texture_domain(problem, data_model="merged" if merged else params.data_model)
             if params.domain == "texture"
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )
@@ -488,7 +493,7 @@ def solve_albedo(
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
-    views, texture, seen = _outputs(problem, d, rho)
+    views, texture, seen = _outputs(problem, d, rho, views=not merged)
     info = {
         "build_seconds": t_build,
         "solve_seconds": time.perf_counter() - t0 - t_build,

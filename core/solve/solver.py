@@ -724,8 +724,23 @@ def _rescaled(d: Discretization, channels):
     return rho, sigma
 
 
-def _outputs(problem, d: Discretization, rho: np.ndarray):
-    """Per-view reflectance maps, and the texture in the texture domain."""
+def _outputs(problem, d: Discretization, rho: np.ndarray, views: bool = True):
+    """Per-view reflectance maps (None without ``views``), and the texture in the texture domain."""
+    maps = _view_maps(problem, d, rho) if views else None
+    texture = seen = None
+    if d.domain == "texture":
+        size = problem.texture.size
+        texture = np.full((size * size, rho.shape[1]), np.nan, dtype=np.float32)
+        texture[d.texel_index] = rho
+        texture = texture.reshape(size, size, rho.shape[1])
+        seen = np.zeros(size * size, dtype=bool)
+        seen[d.texel_index] = True
+        seen = seen.reshape(size, size)
+    return maps, texture, seen
+
+
+def _view_maps(problem, d: Discretization, rho: np.ndarray) -> list:
+    """Per view, the reflectance at each masked pixel (the mean over its observations), NaN elsewhere."""
     C = rho.shape[1]
     if d.domain == "image":
         pix_rho = rho
@@ -738,22 +753,13 @@ def _outputs(problem, d: Discretization, rho: np.ndarray):
         )
         with np.errstate(invalid="ignore", divide="ignore"):
             pix_rho = pix_rho / wsum[:, None]
-    views = []
+    maps = []
     for v in range(d.n_views):
         mask = problem.masks[v]
         out = np.full(mask.shape + (C,), np.nan, dtype=np.float32)
         out[mask] = pix_rho[d.pixel_offsets[v] : d.pixel_offsets[v + 1]]
-        views.append(out)
-    texture = seen = None
-    if d.domain == "texture":
-        size = problem.texture.size
-        texture = np.full((size * size, C), np.nan, dtype=np.float32)
-        texture[d.texel_index] = rho
-        texture = texture.reshape(size, size, C)
-        seen = np.zeros(size * size, dtype=bool)
-        seen[d.texel_index] = True
-        seen = seen.reshape(size, size)
-    return views, texture, seen
+        maps.append(out)
+    return maps
 
 
 def _gauss_newton_step(ch: _Channel) -> bool:
