@@ -294,11 +294,13 @@ def division_start(d, sigma: np.ndarray) -> np.ndarray:
 
 def _start(d, sigma, half=None) -> np.ndarray:
     """The albedo stage's start: the half-size solve where it has a value, else :func:`division_start`."""
-    rho0 = division_start(d, sigma)
     if half is None:
-        return rho0
-    rho = half.reshape(-1, half.shape[-1])[d.texel_index]
-    return np.where(np.isfinite(rho), rho, rho0).astype(np.float32)
+        return division_start(d, sigma)
+    rho = half.reshape(-1, half.shape[-1])[d.texel_index].astype(np.float32)
+    missing = ~np.isfinite(rho)
+    if missing.any():
+        rho[missing] = division_start(d, sigma)[missing]
+    return rho
 
 
 #: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
