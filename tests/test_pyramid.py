@@ -148,3 +148,17 @@ def test_upsample_bilinear_is_exact_for_a_linear_albedo():
     inner[:, :10] = inner[:, -1:] = inner[:1] = inner[-1:] = False
     np.testing.assert_allclose(fine[inner, 0], linear(64)[inner, 0], atol=1e-5)
     assert np.all(np.isnan(fine[~fine_seen]))
+
+
+@pytest.mark.parametrize("n", [5, 48])
+def test_upsampling_twice_on_the_grid_matches_the_lookup_per_texel(n):
+    rng = np.random.default_rng(n)
+    seen = rng.random((n, n)) < 0.7
+    coarse = np.where(seen[..., None], rng.random((n, n, 3)), np.nan).astype(np.float32)
+    inside = rng.random((2 * n, 2 * n)) < 0.8
+    fast, fast_seen = pyramid._upsample_twice(coarse, seen, inside)
+    slow, slow_seen = pyramid._upsample_lookup(coarse, seen, inside)
+    np.testing.assert_array_equal(fast_seen, slow_seen)
+    assert fast_seen.any() and not fast_seen.all()
+    np.testing.assert_allclose(fast[fast_seen], slow[slow_seen], atol=1e-6)
+    assert np.all(np.isnan(fast[~fast_seen]))
