@@ -317,7 +317,7 @@ def test_small_problems_run_their_channels_in_one_thread():
 
 
 def test_a_tv_edge_is_weighted_by_the_texel_side_it_crosses():
-    from core.solve.discretization import _grid_edges, _side_across
+    from core.solve.discretization import _edge_lengths, _grid_edges
 
     rng = np.random.default_rng(0)
     size = 9
@@ -325,11 +325,15 @@ def test_a_tv_edge_is_weighted_by_the_texel_side_it_crosses():
         rng.uniform(0.5, 1.5, (size, size, 3)), axis=1
     )
     pos[rng.random((size, size)) < 0.2] = np.nan  # texels outside the islands
-    a, b, horizontal = _grid_edges(np.isfinite(pos[..., 0]))
-    got = _side_across(pos.reshape(-1, 3).astype(np.float32), size, a, horizontal)
+    keep = np.isfinite(pos[..., 0])
+    keep[4, 4] = True  # a kept texel without a position: its edges' lengths are unknown
+    a, b, horizontal = _grid_edges(keep)
+    length, got = _edge_lengths(pos.astype(np.float32), keep)
     p = pos.astype(np.float32).astype(np.float64)
-    for t, h, g in zip(a, horizontal, got):
+    assert length.shape == got.shape == a.shape
+    for t, u, h, n, g in zip(a, b, horizontal, length, got):
         r, c = divmod(int(t), size)
+        np.testing.assert_equal(n, np.linalg.norm(p[r, c] - p[divmod(int(u), size)]))
         dr, dc = (1, 0) if h else (0, 1)  # across a horizontal edge the side runs along the rows
         near = [
             np.linalg.norm(p[r, c] - p[r + s * dr, c + s * dc])

@@ -475,10 +475,8 @@ def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: flo
     seen = np.zeros(size * size, dtype=bool)
     seen[texels] = True
     seen = seen.reshape(size, size)
-    a, b, horizontal = _grid_edges(seen)
-    pos = layout.texel_pos.reshape(-1, 3)
-    length = np.linalg.norm(pos[a].astype(np.float64) - pos[b], axis=1)
-    perp = _side_across(pos, size, a, horizontal)
+    a, b, _ = _grid_edges(seen)
+    length, perp = _edge_lengths(layout.texel_pos, seen)
     perp = np.where(np.isfinite(perp), perp, length)
     med = float(np.median(length)) if length.size else 1.0
     good = length <= max_edge_ratio * med
@@ -504,25 +502,49 @@ def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
     return obs_matrix, pixels, w_pix
 
 
-def _side_across(pos: np.ndarray, size: int, a: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
-    """Surface length of texel ``a``'s side that the edge from it crosses, NaN where unknown.
+def _edge_lengths(pos: np.ndarray, keep: np.ndarray):
+    """Per grid edge between kept texels (in :func:`_grid_edges`' order): its length on the surface, and the
+    surface length of the side of its first texel that it crosses (NaN where unknown).
 
-    That is the mean distance to its two neighbours across the edge (one at the texture's border): along v
-    (rows) for a horizontal edge, along u (columns) for a vertical one. ``pos`` is the ``(size * size, 3)``
-    texel positions; only the edges' texels are computed, not the whole grid.
+    That side's length is the mean distance to the texel's two neighbours across the edge (one at the
+    texture's border, or where a neighbour has no position): along the rows for a horizontal edge, along the
+    columns for a vertical one. ``pos`` is the ``(N, N, 3)`` texel positions (NaN outside the islands); the
+    distances between neighbours are taken on the whole grid at once, in float64.
     """
-    out = np.empty(a.size)
-    for sel, step in ((horizontal, size), (~horizontal, 1)):
-        t = a[sel]
-        coord = t // size if step == size else t % size
-        first, last = coord == 0, coord == size - 1
-        here = pos[t].astype(np.float64)
-        before = np.linalg.norm(here - pos[np.where(first, t, t - step)], axis=1)
-        after = np.linalg.norm(pos[np.where(last, t, t + step)].astype(np.float64) - here, axis=1)
-        before[first] = np.nan
-        after[last] = np.nan
-        # The mean of the known ones, as np.nanmean sums them (without its copies); 0 / 0 where neither is.
-        kb, ka = np.isfinite(before), np.isfinite(after)
-        with np.errstate(invalid="ignore"):
-            out[sel] = (np.where(kb, before, 0.0) + np.where(ka, after, 0.0)) / (kb.astype(np.float64) + ka)
-    return out
+    n = pos.shape[0]
+    right = np.zeros((n, n - 1))
+    below = np.zeros((n - 1, n))
+    p = np.empty((n, n))
+    for k in range(3):
+        np.copyto(p, pos[..., k])
+        d = p[:, 1:] - p[:, :-1]
+        d *= d
+        right += d
+        d = p[1:] - p[:-1]
+        d *= d
+        below += d
+    del p, d
+    right, below = np.sqrt(right, out=right).ravel(), np.sqrt(below, out=below).ravel()
+    r, c = np.nonzero(keep[:, :-1] & keep[:, 1:])  # horizontal edges, from (r, c) to (r, c + 1)
+    horizontal = (
+        right[r * (n - 1) + c],
+        _mean_of_known(_at(below, (r - 1) * n + c, r > 0), _at(below, r * n + c, r < n - 1)),
+    )
+    r, c = np.nonzero(keep[:-1, :] & keep[1:, :])  # vertical edges, from (r, c) to (r + 1, c)
+    vertical = (
+        below[r * n + c],
+        _mean_of_known(_at(right, r * (n - 1) + c - 1, c > 0), _at(right, r * (n - 1) + c, c < n - 1)),
+    )
+    return np.concatenate([horizontal[0], vertical[0]]), np.concatenate([horizontal[1], vertical[1]])
+
+
+def _at(values, index, valid):
+    """``values[index]`` where ``valid``, NaN elsewhere."""
+    return np.where(valid, np.take(values, np.where(valid, index, 0)), np.nan)
+
+
+def _mean_of_known(x, y):
+    """The mean of the finite ones of x and y, elementwise; NaN where neither is."""
+    kx, ky = np.isfinite(x), np.isfinite(y)
+    with np.errstate(invalid="ignore"):
+        return (np.where(kx, x, 0.0) + np.where(ky, y, 0.0)) / (kx.astype(np.float64) + ky)
