@@ -17,7 +17,7 @@ observation per pixel, TV rows between 4-neighbours inside each mask
 Texture domain (the paper's future work): one unknown per texel that some
 pixel lands in; TV rows between texel neighbours inside the islands and
 across seams, weighted by surface length. There is no mu-term: pixels that
-land on the same texel *are* the correspondences. Three data models:
+land on the same texel *are* the correspondences. Four data models:
 
 * ``"interpolate"``: one observation per pixel, whose reflectance
   is the bilinear interpolation of the 4 texels around its UV, as a renderer
