@@ -341,7 +341,7 @@ def thinned_for_lighting(problem, most: float):
         thin = coarsen(problem, texture=False)
         if thin is None:
             break
-        problem = replace(thin, texture=problem.texture)
+        problem = thin.on_layout(problem.texture)
     return problem
 
 

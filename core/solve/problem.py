@@ -18,6 +18,7 @@ Conventions
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -170,6 +171,12 @@ class Problem:
             self._check_correspondences()
         if self.texture is not None and self.uv is None:
             _fail("problem: a texture layout needs per-pixel uv")
+
+    def on_layout(self, texture: TextureLayout) -> Problem:
+        """The same photos on another texture layout, without checking them again (they were, once)."""
+        out = copy.copy(self)
+        out.texture = texture
+        return out
 
     def _check_transfer(self):
         if len(self.transfer) != self.n_views:

@@ -10,8 +10,6 @@ correspondences whose source pixel survives are kept, in coarse coordinates.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ..geometry.bilinear import interpolate, masked_corners
@@ -27,10 +25,17 @@ MIN_PIXELS = 20_000
 
 def _coarsen_layout(layout: TextureLayout) -> TextureLayout:
     n = layout.size // 2
-    p = layout.texel_pos[: 2 * n, : 2 * n].reshape(n, 2, n, 2, 3)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # blocks with no texel stay NaN
-        pos = np.nanmean(p, axis=(1, 3))
+    # The mean position of each 2x2 block's texels that have one (NaN for none), summed as np.nanmean does.
+    total = np.zeros((n, n, 3), layout.texel_pos.dtype)
+    count = np.zeros((n, n, 1), layout.texel_pos.dtype)
+    for i in (0, 1):
+        for j in (0, 1):
+            q = layout.texel_pos[i : 2 * n : 2, j : 2 * n : 2]
+            known = np.isfinite(q[..., :1])
+            total += np.where(known, q, 0)
+            count += known
+    with np.errstate(invalid="ignore"):
+        pos = total / count
     fine = layout.size
     pairs = layout.seam_pairs
     r, c = np.divmod(pairs, fine)
@@ -153,17 +158,7 @@ def with_texture_size(problem: Problem, size: int) -> Problem:
     layout = problem.texture
     while layout.size > size:
         layout = _coarsen_layout(layout)
-    return Problem(
-        problem.images,
-        problem.masks,
-        problem.normals,
-        correspondences=problem.correspondences,
-        uv=problem.uv,
-        texture=layout,
-        view_weight=problem.view_weight,
-        names=list(problem.names),
-        transfer=problem.transfer,
-    )
+    return problem.on_layout(layout)
 
 
 def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayout):
