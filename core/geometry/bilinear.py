@@ -51,7 +51,12 @@ def masked_corners(x, y, valid):
     return flat, wts
 
 
-def interpolate(values, corners, weights):
-    """The weighted sum of ``values`` (flat cells first, (N, ...) ) at ``corners`` (K, 4): (K, ...)."""
+def interpolate(values, corners, weights, nan_as_zero: bool = False):
+    """The weighted sum of ``values`` (flat cells first, (N, ...) ) at ``corners`` (K, 4): (K, ...).
+
+    With ``nan_as_zero``, NaN cells count as 0 (replaced in the values looked up, not in a copy of all).
+    """
     v = values[corners]
+    if nan_as_zero:
+        np.nan_to_num(v, copy=False)
     return np.einsum("kj,kj...->k...", weights, v)

@@ -126,7 +126,7 @@ def upsample_pixels(coarse: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """
     r, c = np.nonzero(mask)
     flat, w = masked_corners(c / 2.0, r / 2.0, np.isfinite(coarse[..., 0]))
-    out = interpolate(np.nan_to_num(coarse.reshape(-1, coarse.shape[-1])), flat, w)
+    out = interpolate(coarse.reshape(-1, coarse.shape[-1]), flat, w, nan_as_zero=True)
     out[w.sum(axis=1) == 0] = np.nan
     return out
 
@@ -181,7 +181,7 @@ def _upsample_lookup(coarse, seen, inside):
     idx, w = bilinear_texels(uv_of_texel(r, c, size), seen)
     fine = np.full((size, size, coarse.shape[-1]), np.nan, dtype=np.float32)
     ok = w.sum(axis=1) > 0
-    fine[r[ok], c[ok]] = interpolate(np.nan_to_num(coarse.reshape(-1, coarse.shape[-1])), idx[ok], w[ok])
+    fine[r[ok], c[ok]] = interpolate(coarse.reshape(-1, coarse.shape[-1]), idx[ok], w[ok], nan_as_zero=True)
     return fine, np.isfinite(fine[..., 0])
 
 
