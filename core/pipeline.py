@@ -121,9 +121,9 @@ def _lighting_stage(problem, params, progress, cancel):
     return result
 
 
-#: The sun search's settings (core.geometry.sun.find_sun): 100 candidates on 128² shadow maps, at most 20 000
-#: pairs of pixels; 1-3 s on the fixtures, within 2-11 degrees where the sun casts shadows (docs/measurements.md).
-SUN_SEARCH = {"n_directions": 100, "max_pairs": 20000, "resolution": 128}
+#: The sun search's settings (core.geometry.sun.find_sun): 200 candidates on 128² shadow maps, at most 20 000
+#: pairs of pixels; 1-4 s on the fixtures, within 1-7 degrees where the sun casts shadows (docs/measurements.md).
+SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
 
 
 def _transfer(bakes, masks, cells, sun) -> list:
