@@ -328,7 +328,7 @@ def test_a_tv_edge_is_weighted_by_the_texel_side_it_crosses():
     keep = np.isfinite(pos[..., 0])
     keep[4, 4] = True  # a kept texel without a position: its edges' lengths are unknown
     a, b, horizontal = _grid_edges(keep)
-    length, got = _edge_lengths(pos.astype(np.float32), keep)
+    length, got = _edge_lengths(pos.astype(np.float32), a, horizontal)
     p = pos.astype(np.float32).astype(np.float64)
     assert length.shape == got.shape == a.shape
     for t, u, h, n, g in zip(a, b, horizontal, length, got):

@@ -475,8 +475,8 @@ def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: flo
     seen = np.zeros(size * size, dtype=bool)
     seen[texels] = True
     seen = seen.reshape(size, size)
-    a, b, _ = _grid_edges(seen)
-    length, perp = _edge_lengths(layout.texel_pos, seen)
+    a, b, horizontal = _grid_edges(seen)
+    length, perp = _edge_lengths(layout.texel_pos, a, horizontal)
     perp = np.where(np.isfinite(perp), perp, length)
     med = float(np.median(length)) if length.size else 1.0
     good = length <= max_edge_ratio * med
@@ -502,9 +502,10 @@ def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
     return obs_matrix, pixels, w_pix
 
 
-def _edge_lengths(pos: np.ndarray, keep: np.ndarray):
-    """Per grid edge between kept texels (in :func:`_grid_edges`' order): its length on the surface, and the
-    surface length of the side of its first texel that it crosses (NaN where unknown).
+def _edge_lengths(pos: np.ndarray, a: np.ndarray, horizontal: np.ndarray):
+    """Per grid edge from texel ``a`` (flat; to its right neighbour where ``horizontal``, else to the one
+    below, as :func:`_grid_edges` gives them): its length on the surface, and the surface length of the side
+    of texel ``a`` that it crosses (NaN where unknown).
 
     That side's length is the mean distance to the texel's two neighbours across the edge (one at the
     texture's border, or where a neighbour has no position): along the rows for a horizontal edge, along the
@@ -525,17 +526,15 @@ def _edge_lengths(pos: np.ndarray, keep: np.ndarray):
         below += d
     del p, d
     right, below = np.sqrt(right, out=right).ravel(), np.sqrt(below, out=below).ravel()
-    r, c = np.nonzero(keep[:, :-1] & keep[:, 1:])  # horizontal edges, from (r, c) to (r, c + 1)
-    horizontal = (
-        right[r * (n - 1) + c],
-        _mean_of_known(_at(below, (r - 1) * n + c, r > 0), _at(below, r * n + c, r < n - 1)),
-    )
-    r, c = np.nonzero(keep[:-1, :] & keep[1:, :])  # vertical edges, from (r, c) to (r + 1, c)
-    vertical = (
-        below[r * n + c],
-        _mean_of_known(_at(right, r * (n - 1) + c - 1, c > 0), _at(right, r * (n - 1) + c, c < n - 1)),
-    )
-    return np.concatenate([horizontal[0], vertical[0]]), np.concatenate([horizontal[1], vertical[1]])
+    length, across = np.empty(a.size), np.empty(a.size)
+    h, v = horizontal, ~horizontal
+    r, c = np.divmod(a[h], n)
+    length[h] = right[r * (n - 1) + c]
+    across[h] = _mean_of_known(_at(below, (r - 1) * n + c, r > 0), _at(below, r * n + c, r < n - 1))
+    r, c = np.divmod(a[v], n)
+    length[v] = below[r * n + c]
+    across[v] = _mean_of_known(_at(right, r * (n - 1) + c - 1, c > 0), _at(right, r * (n - 1) + c, c < n - 1))
+    return length, across
 
 
 def _at(values, index, valid):
