@@ -14,7 +14,8 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
   (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.solver.SolverParams`);
 * ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
   the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
-  default), then the albedo solved again with that lighting held fixed and the albedo stage's TV weight and edges
+  default, with the sun's term at the direction the run found where it found one), then the albedo solved
+  again with that lighting held fixed and the albedo stage's TV weight and edges
   (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
   ``ceiling_divide`` the photos divided by the fitted shading, without TV;
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
@@ -170,25 +171,28 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     return row
 
 
-def problem_of(inputs, bakes, size, occlusion=False):
-    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking)."""
+def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
+    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking).
+
+    With ``sun_direction`` the transfer has the sun's term as its last column, as the pipeline's has where
+    it found a sun there.
+    """
+    from core.geometry.sun import SunLight
     from core.geometry.texels import texture_layout
+    from core.geometry.transfer import occlusion_grid, transfer_rows
     from core.solve.problem import Problem
 
     m = inputs.mesh
     layout = texture_layout(m.tri_uv, m.tri_pos, m.tri_vert, size)
     transfer = None
-    if occlusion:
-        from core.geometry.transfer import pixel_transfer
-
-        transfer = pixel_transfer(
-            m.tri_pos,
-            [b.uv for b in bakes],
-            [b.mask for b in bakes],
-            [b.normal for b in bakes],
-            [b.position for b in bakes],
-            [b.view_weight for b in bakes],
-        )
+    if occlusion or sun_direction is not None:
+        uvs, masks = [b.uv for b in bakes], [b.mask for b in bakes]
+        normals, positions = [b.normal for b in bakes], [b.position for b in bakes]
+        cells = None
+        if occlusion:
+            cells = occlusion_grid(m.tri_pos, uvs, masks, normals, positions, [b.view_weight for b in bakes])
+        sun = None if sun_direction is None else SunLight(np.asarray(sun_direction, np.float64), m.tri_pos)
+        transfer = [transfer_rows(n[k], uv[k], cells, sun, p[k]) for n, uv, k, p in zip(normals, uvs, masks, positions)]
     return Problem(
         images=[v.photo for v in inputs.views],
         masks=[b.mask for b in bakes],
@@ -214,13 +218,12 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     for label, occ in (("", occlusion), ("_nu", False)):
         if label and not occlusion:
             continue
-        problem = problem_of(inputs, bakes, size, occ)
+        # Our own model: with the sun's term at the direction our run found, where it found one.
+        problem = problem_of(inputs, bakes, size, occ, None if label else ours.sun_direction)
         d = texture_domain(problem)
         sigma = fit_lighting(d, gt.reshape(-1, 3)[d.texel_index], "per_view")
         if not label:
-            # With the sun term (option sun) our lighting has a coefficient more than this fit: not compared.
-            same = ours.sigma.shape[2] == sigma.shape[2]
-            out["lighting_error"] = float(np.mean(shading_error(d, ours.sigma, sigma))) if same else float("nan")
+            out["lighting_error"] = float(np.mean(shading_error(d, ours.sigma, sigma)))
             div = np.full((size * size, 3), np.nan, np.float32)
             div[d.texel_index] = division_start(d, sigma)
             seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
@@ -241,7 +244,7 @@ def line(row):
         s += (
             f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
             + (f"  nu {np.mean(row['ceiling_nu']):.3f}" if "ceiling_nu" in row else "")
-            + f"  light err {row['lighting_error']:.3f}".replace("nan", "n/a")
+            + f"  light err {row['lighting_error']:.3f}"
         )
     if "lighting_mode" in row:
         s += f"  mode {row['lighting_mode']}"
