@@ -7,9 +7,9 @@ several cores at once without copying the arrays into other processes.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
-__all__ = ["available_cores", "resolve_threads", "thread_map"]
+__all__ = ["available_cores", "resolve_threads", "start", "thread_map"]
 
 
 def available_cores() -> int:
@@ -51,3 +51,23 @@ def thread_map(fn, items, threads: int | None = None, done=None) -> list:
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
     return out
+
+
+def start(fn, *args, threads: int | None = None) -> Future:
+    """``fn(*args)`` begun on a thread of its own, to overlap with the caller's work; its :class:`Future`.
+
+    With one thread (``threads``, as :func:`resolve_threads`) it runs now, in the calling thread. Its exception,
+    if any, is raised by ``result()``.
+    """
+    if resolve_threads(threads) <= 1:
+        done = Future()
+        try:
+            done.set_result(fn(*args))
+        except Exception as e:
+            done.set_exception(e)
+        return done
+    pool = ThreadPoolExecutor(max_workers=1)
+    try:
+        return pool.submit(fn, *args)
+    finally:
+        pool.shutdown(wait=False)  # the thread ends once fn returns

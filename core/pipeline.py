@@ -14,6 +14,7 @@ import numpy as np
 from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
+from .parallel import start, thread_map
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem, row_blocks
@@ -126,7 +127,7 @@ def _lighting_stage(problem, params, progress, cancel):
 SUN_SEARCH = {"n_directions": 200, "max_pairs": 20000, "resolution": 128}
 
 
-def _transfer(bakes, masks, cells, sun) -> list:
+def _transfer(bakes, masks, cells, sun, threads=None) -> list:
     """Per view, the transfer of its masked pixels (:func:`core.geometry.transfer.transfer_rows`), as
     consecutive row blocks of one array (:func:`core.solve.problem.row_blocks`), which the solver uses uncopied.
     """
@@ -134,8 +135,12 @@ def _transfer(bakes, masks, cells, sun) -> list:
 
     k = (9 if cells is None else cells.occ.shape[1]) + (sun is not None)
     transfer = row_blocks([int(np.count_nonzero(m)) for m in masks], k)
-    for b, m, rows in zip(bakes, masks, transfer):
-        transfer_rows(b.normal[m], b.uv[m], cells, sun, None if sun is None else b.position[m], out=rows)
+
+    def fill(v):
+        b, m = bakes[v], masks[v]
+        transfer_rows(b.normal[m], b.uv[m], cells, sun, None if sun is None else b.position[m], out=transfer[v])
+
+    thread_map(fill, range(len(masks)), threads)
     return transfer
 
 
@@ -257,8 +262,8 @@ def compute(
 
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
-    layout = _layout(inputs.mesh, n)
-    check_cancel(cancel)
+    # The layout (one core) is made while the occlusion, the lighting's choice and the sun search use the others.
+    layout_job = start(_layout, inputs.mesh, n, threads=opt.threads)
     correspondences = None
     if opt.method == "image":
         from .geometry.correspondences import find_correspondences
@@ -290,7 +295,6 @@ def compute(
         normals=[b.normal for b in bakes],
         correspondences=correspondences,
         uv=uvs,
-        texture=layout if opt.method == "texture" else None,
         view_weight=weights,
         names=[v.name for v in inputs.views],
     )
@@ -311,8 +315,13 @@ def compute(
         if opt.sun:
             sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
             check_cancel(cancel)
+    layout = layout_job.result()
+    check_cancel(cancel)
+    if opt.method == "texture":
+        problem = problem.on_layout(layout)
+    if opt.method != "project":
         if cells is not None or sun is not None:
-            problem = replace(problem, transfer=_transfer(bakes, light_masks, cells, sun))
+            problem = replace(problem, transfer=_transfer(bakes, light_masks, cells, sun, opt.threads))
         params = SolverParams(
             **dict(
                 opt.solver or {},

@@ -174,6 +174,8 @@ class Problem:
 
     def on_layout(self, texture: TextureLayout) -> Problem:
         """The same photos on another texture layout, without checking them again (they were, once)."""
+        if texture is not None and self.uv is None:
+            _fail("problem: a texture layout needs per-pixel uv")
         out = copy.copy(self)
         out.texture = texture
         return out

@@ -1,0 +1,60 @@
+"""core.parallel: work items on threads, and one job begun beside the caller's work."""
+
+import threading
+
+import pytest
+
+from core.parallel import start, thread_map
+
+
+def test_thread_map_keeps_the_order_and_reports_each_item_in_turn():
+    done = []
+    out = thread_map(lambda x: x * x, range(20), threads=3, done=done.append)
+    assert out == [x * x for x in range(20)]
+    assert done == list(range(20))
+
+
+def test_thread_map_stops_when_done_raises():
+    started = []
+
+    def work(x):
+        started.append(x)
+        return x
+
+    def done(i):
+        if i == 0:
+            raise RuntimeError("cancelled")
+
+    with pytest.raises(RuntimeError, match="cancelled"):
+        thread_map(work, range(1000), threads=2, done=done)
+    assert len(started) < 1000  # the items not yet started were dropped
+
+
+def test_start_runs_beside_the_caller_and_gives_its_result():
+    release = threading.Event()
+    main = threading.get_ident()
+
+    def job(x):
+        assert release.wait(10)  # only returns once the caller has gone on
+        return x + 1, threading.get_ident()
+
+    future = start(job, 41, threads=2)
+    release.set()
+    value, ident = future.result(timeout=10)
+    assert value == 42 and ident != main
+
+
+def test_start_with_one_thread_runs_now_in_the_calling_thread():
+    ran = []
+    future = start(lambda: ran.append(threading.get_ident()) or "ok", threads=1)
+    assert ran == [threading.get_ident()] and future.result() == "ok"
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_start_raises_the_jobs_error_from_result(threads):
+    def job():
+        raise ValueError("no triangle covers any texel")
+
+    future = start(job, threads=threads)
+    with pytest.raises(ValueError, match="no triangle"):
+        future.result(timeout=10)
