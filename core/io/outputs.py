@@ -82,6 +82,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Cancelled, DelightError
+from ..parallel import thread_map
 from ..solve.sh import SH_BASIS_NAMES
 from .envmap import add_sun, envmap_image, radiance_sh, world_lighting
 from .exr import write_exr
@@ -546,7 +547,8 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
     files : dict
         Relative path (``/``-separated, as :func:`view_files` gives) ->
         contents: an array (written as EXR), a dict or list (JSON), or a
-        callable ``write(path)``. Written in this order.
+        callable ``write(path)``. Written several at a time, on worker
+        threads (so a callable must not touch bpy).
     report : dict or callable() -> dict
         Contents of ``report.json``, written last; ``"files"`` (the relative
         paths written) is added. A callable is called after the other files
@@ -556,7 +558,7 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
     inputs : iterable of str
         The run's input files, never written (:func:`check_inputs`).
     cancel : callable() -> bool, optional
-        Checked before each file and before the files are moved into place.
+        Checked before the first file, after each one, and before the files are moved into place.
 
     Returns
     -------
@@ -590,10 +592,9 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
         new_dir, old_dir = os.path.join(staging, "new"), os.path.join(staging, "old")
         for d in (new_dir, old_dir):
             os.makedirs(os.path.join(d, "views"))
-        for rel in rels:
-            check_cancel()
-            _write_one(_abs(new_dir, rel), files[rel])
+        # Several files at once: the EXR's compression runs outside the interpreter's lock.
         check_cancel()
+        thread_map(lambda rel: _write_one(_abs(new_dir, rel), files[rel]), rels, done=lambda _: check_cancel())
         contents = dict(report() if callable(report) else report)
         contents["files"] = plan.files
         _write_json(_abs(new_dir, REPORT), contents)
