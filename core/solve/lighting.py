@@ -244,21 +244,30 @@ class Coupling:
         them in turn crawls along that valley and can end on either side of it.
         """
         sigma = np.array(sigma)
-        sols, num, den = [], 0.0, 0.0
-        for v in range(len(sigma)):
-            A, r = As[v], rs[v].copy()
-            idx = free if v == 0 else np.arange(A.shape[0] - 1)
-            if v == 0:  # its constant term is held: it pins the scale
-                r -= A[:, 3] * sigma[0, 3]
-            X = np.linalg.lstsq(A[np.ix_(idx, idx)], np.stack([r[idx], A[idx, -1]], axis=1), rcond=1e-10)[0]
-            q = A[-1, -1] - A[-1, idx] @ X[:, 1]
-            p = r[-1] - A[-1, idx] @ X[:, 0]
+        k = sigma.shape[1]
+        r = np.array(rs, dtype=np.float64)
+        r[0] -= As[0][:, 3] * sigma[0, 3]  # view 0's constant term is held: it pins the scale
+        # View 0 without its constant term; the others' SH all at once (the prior makes their matrices definite).
+        X0 = np.linalg.lstsq(As[0][np.ix_(free, free)], np.stack([r[0, free], As[0][free, -1]], 1), rcond=1e-10)[0]
+        sh = np.arange(k - 1)
+        A, R = As[1:, : k - 1, : k - 1], np.stack([r[1:, : k - 1], As[1:, : k - 1, -1]], axis=-1)
+        try:
+            X = np.linalg.solve(A, R)
+        except np.linalg.LinAlgError:
+            X = None
+        if X is None or not np.all(np.isfinite(X)):
+            X = np.stack([np.linalg.lstsq(a, b, rcond=1e-10)[0] for a, b in zip(A, R)])
+        idx = [free] + [sh] * (len(sigma) - 1)
+        sols = [X0, *X]
+        num = den = 0.0
+        for v, (i, Xv) in enumerate(zip(idx, sols)):
+            q = As[v][-1, -1] - As[v][-1, i] @ Xv[:, 1]
+            p = r[v, -1] - As[v][-1, i] @ Xv[:, 0]
             num += g[v] * p
             den += g[v] * g[v] * q
-            sols.append((idx, X))
         t = max(num / den, 0.0) if den > 0 else sigma[0, -1] / g[0]
-        for v, (idx, X) in enumerate(sols):
-            sigma[v, idx] = X[:, 0] - X[:, 1] * g[v] * t
+        for v, (i, Xv) in enumerate(zip(idx, sols)):
+            sigma[v, i] = Xv[:, 0] - Xv[:, 1] * g[v] * t
             sigma[v, -1] = g[v] * t
         return sigma
 
