@@ -337,7 +337,8 @@ def compute(
         if lighting_only:
             result = _lighting_stage(problem, params, solve_progress, cancel)
         else:
-            result = solve(problem, params, progress=solve_progress, cancel=cancel)
+            # The texture's per-view maps are sampled from the filled albedo below, not the solve's.
+            result = solve(problem, params, progress=solve_progress, cancel=cancel, views=opt.method != "texture")
     times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 

@@ -125,6 +125,17 @@ def test_two_stages_report_both(exposed):
         assert np.allclose(g[:, None] * s, r.sigma[:, c], atol=1e-6 * np.abs(s).max())
 
 
+@pytest.mark.parametrize("albedo_lam", [0.3, None])
+def test_a_solve_without_per_view_maps_gives_the_same_texture(exposed, albedo_lam):
+    # The pipeline samples the texture method's per-view maps from the filled albedo: the solve's are skipped.
+    _, problem, _ = exposed
+    params = SolverParams(lam=5.0, albedo_lam=albedo_lam, max_iter=4, coarse_iter=4, light_size=16)
+    full, bare = solve(problem, params), solve(problem, params, views=False)
+    assert len(full.views) == problem.n_views and bare.views is None
+    np.testing.assert_array_equal(bare.texture, full.texture)
+    np.testing.assert_array_equal(bare.sigma, full.sigma)
+
+
 def test_bad_lighting_params():
     with pytest.raises(ValueError, match="lighting"):
         SolverParams(lighting="world").check()

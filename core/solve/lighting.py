@@ -383,6 +383,7 @@ def solve_albedo(
     refine_iter=REFINE_ITER,
     warm_delta=None,
     merged=False,
+    views=True,
 ):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
@@ -413,6 +414,8 @@ def solve_albedo(
     merged : bool
         Texture domain: the "merged" data model (one observation per texel and photo), with no per-view maps
         in the result; the half-size starts use it.
+    views : bool
+        False: no per-view maps in a texture-domain result (as :func:`core.solve.solver.solve`).
 
     Returns
     -------
@@ -437,6 +440,7 @@ def solve_albedo(
                 refine_iter=refine_iter,
                 warm_delta=warm_delta,
                 merged=merged,
+                views=views,
             )
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
@@ -467,17 +471,19 @@ def solve_albedo(
         from .edges import with_edges_freed
 
         d = with_edges_freed(d, rho0, params.albedo_edges)
-    channels = []
-    for c in range(problem.channels):
+
+    def channel(c):
         ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
         shade = floored(ch.shade.astype(np.float64)).astype(ch.ft)
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
-        channels.append(ch)
-    rho0 = None  # each channel has its own copy
-    release_free_memory()  # the build's temporaries
+        return ch
+
     it = 0
-    with ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), d.obs_pixel.size)) as pool:
+    with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
+        channels = list(pool.map(channel, range(problem.channels)))
+        rho0 = None  # each channel has its own copy
+        release_free_memory()  # the build's temporaries
         for delta in ([] if warm_delta is None else [warm_delta]) + [params.delta]:
             if delta != channels[0].delta:
                 for ch in channels:
@@ -504,7 +510,7 @@ def solve_albedo(
         if np.isfinite(kappa) and kappa > 0:
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
-    views, texture, seen = _outputs(problem, d, rho, views=not merged)
+    views, texture, seen = _outputs(problem, d, rho, views=views and not merged)
     info = {
         "build_seconds": t_build,
         "solve_seconds": time.perf_counter() - t0 - t_build,
@@ -570,7 +576,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     return light_problem, first
 
 
-def solve_two_stage(problem, params, progress=None, cancel=None):
+def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
 
     Stage 1 is :func:`core.solve.solver.solve` with ``params`` (TV weight
@@ -594,7 +600,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None):
     t1 = time.perf_counter()
     albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
     albedo_params = replace(params, lam=params.albedo_lam)
-    second = solve_albedo(problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel)
+    second = solve_albedo(problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views)
     second.info["lighting_stage"] = {
         "iterations": first.iterations,
         "energy": first.energy[-1:],

@@ -249,8 +249,9 @@ class Result:
     ----------
     sigma : (m, C, 9) array
         Lighting per view and channel.
-    views : list of (H, W, C) float32 arrays
-        Reflectance seen through each view, NaN outside its mask.
+    views : list of (H, W, C) float32 arrays, or None
+        Reflectance seen through each view, NaN outside its mask (None from :func:`solve` with ``views``
+        False, texture domain).
     energy : list of float
         Energy at the finest level, before iteration 1 (at the warm start
         when there are coarse levels) and after each iteration (before the
@@ -264,7 +265,7 @@ class Result:
     """
 
     sigma: np.ndarray
-    views: list
+    views: list | None
     energy: list
     iterations: int
     texture: np.ndarray | None = None
@@ -507,7 +508,7 @@ class _Channel:
         return self.e
 
 
-def solve(problem, params: SolverParams | None = None, progress=None, cancel=None) -> Result:
+def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
     """Estimate reflectance and lighting with alternating MM.
 
     The levels of :func:`_ladder` are solved coarse to fine, each started
@@ -520,6 +521,9 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
         Polled between steps; when it returns True, :class:`core.errors.Cancelled` is raised.
+    views : bool
+        False: a texture-domain result without its per-view maps (``Result.views`` None), which cost a pass
+        over every observation; the image domain always has them.
 
     Returns
     -------
@@ -532,7 +536,7 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     if params.albedo_lam is not None:
         from .lighting import solve_two_stage
 
-        return solve_two_stage(problem, params, progress, cancel)
+        return solve_two_stage(problem, params, progress, cancel, views)
     t0 = time.perf_counter()
 
     def poll():
@@ -541,7 +545,8 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     levels = _ladder(problem, params)
     result = None
     for i, level in enumerate(levels):
-        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0)
+        last = i == len(levels) - 1
+        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0, views or not last)
     return result
 
 
@@ -618,7 +623,7 @@ def _level_report(progress, levels, i):
     return report
 
 
-def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float) -> Result:
+def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float, views=True) -> Result:
     """Build one level's discretisation, start it from the level below, iterate, and rescale."""
     problem, params = level.problem, level.params
     base = 0.0 if below is None else _COARSE_SHARE  # of the progress bar, taken by the levels below
@@ -650,7 +655,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     check_cancel()
     it = len(history) - 1
     rho, sigma = _rescaled(d, channels)
-    views, texture, seen = _outputs(problem, d, rho)
+    views, texture, seen = _outputs(problem, d, rho, views)
     report(1.0, f"done in {it} iterations")
     info = {
         "build_seconds": t_build,
@@ -666,7 +671,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
         if below is None
         else {
             "size": None if below.texture is None else int(below.texture.shape[0]),
-            "shapes": [v.shape[:2] for v in below.views],
+            "shapes": None if below.views is None else [v.shape[:2] for v in below.views],
             "iterations": below.iterations,
             "energy": below.energy,
             "info": below.info,
@@ -725,8 +730,9 @@ def _rescaled(d: Discretization, channels):
 
 
 def _outputs(problem, d: Discretization, rho: np.ndarray, views: bool = True):
-    """Per-view reflectance maps (None without ``views``), and the texture in the texture domain."""
-    maps = _view_maps(problem, d, rho) if views else None
+    """Per-view reflectance maps (None without ``views``, texture domain only), and the texture in the texture
+    domain."""
+    maps = _view_maps(problem, d, rho) if views or d.domain == "image" else None
     texture = seen = None
     if d.domain == "texture":
         size = problem.texture.size
