@@ -57,6 +57,7 @@ import scipy.sparse as sp
 
 from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels
+from ..parallel import start, thread_map
 from .problem import Problem, stacked_rows
 from .sh import sh_basis
 from .spmv import PairNormal, matvec_into
@@ -333,7 +334,9 @@ def _correspondence_rows(problem: Problem, lut: list, n: int, normalise: bool):
     return _difference_rows(ua, ub, wb), w.astype(np.float32)
 
 
-def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: str = "splat") -> Discretization:
+def texture_domain(
+    problem: Problem, max_edge_ratio: float = 4.0, data_model: str = "splat", threads: int | None = None
+) -> Discretization:
     """Reflectance on the texels of the mesh's UV map.
 
     Each masked pixel sees the 4 texels around its UV with bilinear weights:
@@ -345,7 +348,8 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     domain, so that lambda means the same in both domains. TV edges are
     weighted by the surface length of the texel side they cross (relative to
     the median), and edges longer than ``max_edge_ratio`` times the median are
-    dropped: such texels touch in UV but not on the surface.
+    dropped: such texels touch in UV but not on the surface. ``threads`` (None: every core) build the views'
+    observations and the TV rows side by side.
     """
     if problem.texture is None or problem.uv is None:
         raise ValueError("texture domain: the problem needs uv and a texture layout")
@@ -355,7 +359,7 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
         )
     size = problem.texture.size
     offsets, values, nu = _masked_pixels(problem)
-    tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest")
+    tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest", threads=threads)
     if data_model == "merged":
         offsets, values, nu, tex_obs, pix_obs, w_obs = _merged_per_view(
             offsets, values, nu, tex_obs, pix_obs, w_obs, size
@@ -366,9 +370,10 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     lut[texels] = np.arange(texels.size)
     n = texels.size
     w_obs *= n / w_obs.sum()
-    B, BT, B2T, base = _texel_rows(problem.texture, texels, lut, max_edge_ratio)
+    rows = start(_texel_rows, problem.texture, texels, lut, max_edge_ratio, threads=threads)
     order = np.argsort(pix_obs, kind="stable")
     obs_unknown, pix_obs, w_obs = lut[tex_obs][order], pix_obs[order], w_obs[order]
+    B, BT, B2T, base = rows.result()
     obs_matrix = None
     if data_model == "interpolate":
         obs_matrix, pix_obs, w_obs = _interpolation_rows(obs_unknown, pix_obs, w_obs, n)
@@ -400,14 +405,15 @@ def texture_domain(problem: Problem, max_edge_ratio: float = 4.0, data_model: st
     return d
 
 
-def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):
+def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False, threads: int | None = None):
     """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight.
 
     With ``nearest``, only the pixel's texel of largest bilinear weight, carrying the pixel's whole weight.
+    The views on up to ``threads`` threads.
     """
     inside = problem.texture.inside
-    tex_obs, pix_obs, w_obs = [], [], []
-    for i in range(problem.n_views):
+
+    def view(i):
         mask = problem.masks[i]
         flat, wts = bilinear_texels(problem.uv[i][mask], inside)
         if nearest:  # one column: the texel of largest weight, with the pixel's whole weight
@@ -417,9 +423,9 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False):
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), flat.shape[1])
         keep = wts.ravel() > 0
-        tex_obs.append(flat.ravel()[keep])
-        pix_obs.append(pix[keep])
-        w_obs.append(wts.ravel()[keep])
+        return flat.ravel()[keep], pix[keep], wts.ravel()[keep]
+
+    tex_obs, pix_obs, w_obs = zip(*thread_map(view, range(problem.n_views), threads))
     tex_obs = np.concatenate(tex_obs)
     if tex_obs.size == 0:
         raise ValueError("texture domain: no pixel lands inside the UV islands")

@@ -80,7 +80,7 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     from .discretization import texture_domain
     from .solver import Result, _Channel, _iterate, _outputs, _rescaled
 
-    d = texture_domain(problem, data_model=params.data_model)
+    d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
     C = problem.channels
     rho = first.texture.reshape(-1, C)[d.texel_index]
     rho = np.where(np.isfinite(rho), rho, d.rho0)

@@ -459,7 +459,7 @@ def solve_albedo(
     t_build0 = time.perf_counter()
     if d is None:
         d = (
-            texture_domain(problem, data_model="merged" if merged else params.data_model)
+            texture_domain(problem, data_model="merged" if merged else params.data_model, threads=params.threads)
             if params.domain == "texture"
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )

@@ -631,7 +631,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
     else:
-        d = texture_domain(problem, data_model=params.data_model)
+        d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
     check_cancel()
     # Timings count from the start of the whole solve, levels below included.
     t_build = time.perf_counter() - t0
