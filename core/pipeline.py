@@ -347,7 +347,7 @@ def compute(
     fuse_progress(0.0, "texture")
     if opt.method == "texture":
         seen = np.asarray(result.seen, dtype=bool)
-        albedo = fill_unseen(result.texture, seen, layout.inside, margin=4)
+        albedo = fill_unseen(result.texture, seen, layout.inside, margin=4, threads=opt.threads)
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
@@ -369,7 +369,7 @@ def compute(
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)
     if opt.method == "texture":
-        views = [sample_texture(albedo, uv, m) for uv, m in zip(uvs, masks)]
+        views = thread_map(lambda v: sample_texture(albedo, uvs[v], masks[v]), range(len(uvs)), opt.threads)
     return Computed(
         albedo=np.asarray(albedo, dtype=np.float32),
         seen=seen,

@@ -10,6 +10,7 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..parallel import thread_map
 from ..solve.cg import pcg
 
 __all__ = ["fill_unseen"]
@@ -81,7 +82,7 @@ def _upsample(coarse, dom_c, shape, where):
     return acc / wsum
 
 
-def _harmonic(vals, fixed, dom):
+def _harmonic(vals, fixed, dom, threads=None):
     """Harmonic interpolant of the fixed texels on the free texels of ``dom``.
 
     ``vals`` (n0, n1, C) must be 0 off ``fixed``, and every 4-connected
@@ -114,19 +115,17 @@ def _harmonic(vals, fixed, dom):
     fixed_c = cnt > 0
     vals_c = block_sum(vals) / np.maximum(cnt, 1)[..., None]  # vals is 0 off fixed
     dom_c = block_sum(dom.astype(np.float32)) > 0
-    free_c, x_c = _harmonic(vals_c, fixed_c, dom_c)
+    free_c, x_c = _harmonic(vals_c, fixed_c, dom_c, threads)
     vals_c.reshape(-1, vals_c.shape[-1])[free_c] = x_c
     x0 = _upsample(vals_c, dom_c, dom.shape, free)
     inv_deg = 1.0 / deg
-    for ch in range(rhs.shape[1]):
-        x0[:, ch] = pcg(
-            a.__matmul__,
-            np.ascontiguousarray(rhs[:, ch]),
-            np.ascontiguousarray(x0[:, ch]),
-            inv_deg,
-            _CG_MAX_ITER,
-            _CG_TOL,
-        )
+
+    def refine(ch):
+        rhs_ch, x_ch = np.ascontiguousarray(rhs[:, ch]), np.ascontiguousarray(x0[:, ch])
+        return pcg(a.__matmul__, rhs_ch, x_ch, inv_deg, _CG_MAX_ITER, _CG_TOL)
+
+    for ch, x in enumerate(thread_map(refine, range(rhs.shape[1]), threads)):
+        x0[:, ch] = x
     return free, x0
 
 
@@ -159,7 +158,7 @@ def _dilate(vals, filled, rings):
     return vals
 
 
-def fill_unseen(texture, seen, inside, margin=4):
+def fill_unseen(texture, seen, inside, margin=4, threads=None):
     """Fill the texels that no view saw.
 
     Inside each UV island (4-connected component of ``inside | seen``), the
@@ -180,6 +179,8 @@ def fill_unseen(texture, seen, inside, margin=4):
         Texels inside UV islands.
     margin : int, optional
         Rings of dilation past the islands (default 4).
+    threads : int or None
+        The channels are refined on up to this many threads (None: every core).
 
     Returns
     -------
@@ -211,7 +212,7 @@ def fill_unseen(texture, seen, inside, margin=4):
     has_seen = np.bincount(labels.ravel()[idx], minlength=nlab + 1) > 0
     has_seen[0] = False
     orphan = dom & ~has_seen[labels]
-    free, x = _harmonic(vals, seen, dom & ~orphan)
+    free, x = _harmonic(vals, seen, dom & ~orphan, threads)
     flat[free] = x
     flat[np.flatnonzero(orphan)] = data.mean(axis=0)
     vals = _dilate(vals, dom, margin)
