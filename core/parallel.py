@@ -6,10 +6,11 @@ several cores at once without copying the arrays into other processes.
 
 from __future__ import annotations
 
+import contextlib
 import os
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-__all__ = ["available_cores", "resolve_threads", "start", "thread_map"]
+__all__ = ["available_cores", "joined", "resolve_threads", "start", "thread_map"]
 
 
 def available_cores() -> int:
@@ -71,3 +72,16 @@ def start(fn, *args, threads: int | None = None) -> Future:
         return pool.submit(fn, *args)
     finally:
         pool.shutdown(wait=False)  # the thread ends once fn returns
+
+
+@contextlib.contextmanager
+def joined(future: Future):
+    """``with joined(start(...)) as job:``: if the block raises, the job is waited for before the error goes on.
+
+    So that a failed or cancelled run leaves no thread of its own working behind it.
+    """
+    try:
+        yield future
+    except BaseException:
+        wait([future])
+        raise

@@ -14,7 +14,7 @@ import numpy as np
 from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
-from .parallel import start, thread_map
+from .parallel import joined, start, thread_map
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem, row_blocks
@@ -263,59 +263,60 @@ def compute(
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
     # The layout (one core) is made while the occlusion, the lighting's choice and the sun search use the others.
-    layout_job = start(_layout, inputs.mesh, n, threads=opt.threads)
-    correspondences = None
-    if opt.method == "image":
-        from .geometry.correspondences import find_correspondences
+    # A run that fails or is cancelled before that waits for it: no thread outlives the run.
+    with joined(start(_layout, inputs.mesh, n, threads=opt.threads)) as layout_job:
+        correspondences = None
+        if opt.method == "image":
+            from .geometry.correspondences import find_correspondences
 
-        correspondences = find_correspondences(
-            [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
-        )
-        check_cancel(cancel)
-    cells = sun = sun_info = None
-    if opt.occlusion and opt.method != "project":
-        from .geometry.transfer import occlusion_grid
-
-        solve_progress(0.0, "occlusion")
-        t_occ = time.perf_counter()
-        cells = occlusion_grid(
-            inputs.mesh.tri_pos,
-            uvs,
-            masks,
-            [b.normal for b in bakes],
-            [b.position for b in bakes],
-            weights,
-            threads=opt.threads,
-        )
-        occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
-        check_cancel(cancel)
-    problem = Problem(
-        images=photos,
-        masks=light_masks,
-        normals=[b.normal for b in bakes],
-        correspondences=correspondences,
-        uv=uvs,
-        view_weight=weights,
-        names=[v.name for v in inputs.views],
-    )
-    result = None
-    lam, variation, lighting = opt.lam, None, opt.lighting
-    if opt.method != "project":
-        from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
-        from .solve.lighting import choose_lighting
-
-        if lam is None or lighting == "auto":
-            auto, variation = auto_lambda(problem)
-            if lam is None:
-                # With two stages the lighting stage wants a strong TV whatever the light does.
-                lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
-                solve_progress(0.0, describe_lambda(lam, variation, auto=True))
-            if lighting == "auto":
-                lighting = choose_lighting(variation)
-        if opt.sun:
-            sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+            correspondences = find_correspondences(
+                [v.camera for v in inputs.views], [b.position for b in bakes], solve_masks, [b.normal for b in bakes]
+            )
             check_cancel(cancel)
-    layout = layout_job.result()
+        cells = sun = sun_info = None
+        if opt.occlusion and opt.method != "project":
+            from .geometry.transfer import occlusion_grid
+
+            solve_progress(0.0, "occlusion")
+            t_occ = time.perf_counter()
+            cells = occlusion_grid(
+                inputs.mesh.tri_pos,
+                uvs,
+                masks,
+                [b.normal for b in bakes],
+                [b.position for b in bakes],
+                weights,
+                threads=opt.threads,
+            )
+            occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
+            check_cancel(cancel)
+        problem = Problem(
+            images=photos,
+            masks=light_masks,
+            normals=[b.normal for b in bakes],
+            correspondences=correspondences,
+            uv=uvs,
+            view_weight=weights,
+            names=[v.name for v in inputs.views],
+        )
+        result = None
+        lam, variation, lighting = opt.lam, None, opt.lighting
+        if opt.method != "project":
+            from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
+            from .solve.lighting import choose_lighting
+
+            if lam is None or lighting == "auto":
+                auto, variation = auto_lambda(problem)
+                if lam is None:
+                    # With two stages the lighting stage wants a strong TV whatever the light does.
+                    lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
+                    solve_progress(0.0, describe_lambda(lam, variation, auto=True))
+                if lighting == "auto":
+                    lighting = choose_lighting(variation)
+            if opt.sun:
+                sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+                check_cancel(cancel)
+        layout = layout_job.result()
     check_cancel(cancel)
     if opt.method == "texture":
         problem = problem.on_layout(layout)

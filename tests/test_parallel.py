@@ -4,7 +4,7 @@ import threading
 
 import pytest
 
-from core.parallel import start, thread_map
+from core.parallel import joined, start, thread_map
 
 
 def test_thread_map_keeps_the_order_and_reports_each_item_in_turn():
@@ -58,3 +58,28 @@ def test_start_raises_the_jobs_error_from_result(threads):
     future = start(job, threads=threads)
     with pytest.raises(ValueError, match="no triangle"):
         future.result(timeout=10)
+
+
+def test_a_failing_block_waits_for_its_job_so_no_thread_outlives_it():
+    release = threading.Event()
+
+    def job():
+        release.wait(10)
+        return "layout"
+
+    future = start(job, threads=2)
+    with pytest.raises(KeyError):
+        with joined(future):
+            threading.Timer(0.2, release.set).start()  # the job ends only after the block has raised
+            raise KeyError("cancelled")
+    assert future.done() and future.result() == "layout"
+
+
+def test_a_block_that_goes_through_does_not_wait():
+    release = threading.Event()
+    future = start(lambda: release.wait(10), threads=2)
+    with joined(future) as job:
+        assert job is future
+    assert not future.done()  # its result is the caller's to wait for
+    release.set()
+    assert future.result(timeout=10)
