@@ -339,7 +339,13 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
         return _report_json(prepared, computed, view_files, times)
 
     files = _outputs.write_outputs(
-        prepared.out_dir, contents, report, overwrite=opt.overwrite, inputs=_input_files(inputs), cancel=cancel
+        prepared.out_dir,
+        contents,
+        report,
+        overwrite=opt.overwrite,
+        inputs=_input_files(inputs),
+        cancel=cancel,
+        threads=opt.threads,
     )
     # The files are in place: from here on a failure says so. The .blend is saved last.
     saved = None

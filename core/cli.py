@@ -121,7 +121,7 @@ def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, o
         "time_s": None if elapsed is None else round(float(elapsed), 3),
         "info": dict(result.info or {}),
     }
-    _write_all(out_dir, contents, report, overwrite=overwrite, inputs=[bundle], cancel=cancel)
+    _write_all(out_dir, contents, report, overwrite=overwrite, inputs=[bundle], cancel=cancel, threads=params.threads)
     return files
 
 

@@ -139,6 +139,28 @@ def test_write_lists_its_files_and_a_rerun_replaces_them_without_overwrite(tmp_p
     assert (out / "notes.txt").read_text() == "the user's"
 
 
+@pytest.mark.parametrize("threads", [1, 3])
+def test_files_are_written_on_the_threads_given(tmp_path, threads):
+    import threading
+
+    writers = []
+
+    def writer(value):
+        def write(path):
+            writers.append(threading.get_ident())
+            outputs.write_exr(path, np.full((2, 2, 3), value, np.float32))
+
+        return write
+
+    files = {f"views/v{i}.exr": writer(i / 10) for i in range(6)}
+    write_outputs(tmp_path / "out", files, {}, threads=threads)
+    assert [read_exr(tmp_path / "out" / "views" / f"v{i}.exr")[0][0, 0, 0] for i in range(6)] == pytest.approx(
+        [i / 10 for i in range(6)]
+    )
+    if threads == 1:  # --threads 1: everything in the calling thread
+        assert set(writers) == {threading.get_ident()}
+
+
 def test_the_environment_image_is_written_replaced_and_removed_with_the_lighting(tmp_path):
     out = tmp_path / "out"
     write_outputs(out, run_files(sigma_value=1.0), {"run": 1})

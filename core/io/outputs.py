@@ -537,7 +537,9 @@ def _swap(plan, new_dir, old_dir, interrupted):
         raise
 
 
-def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=(), cancel=None) -> list[str]:
+def write_outputs(
+    out_dir, files: dict, report, overwrite: bool = False, inputs=(), cancel=None, threads=None
+) -> list[str]:
     """Write a run's files into ``out_dir``, all or nothing (see the module docstring).
 
     Parameters
@@ -559,6 +561,8 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
         The run's input files, never written (:func:`check_inputs`).
     cancel : callable() -> bool, optional
         Checked before the first file, after each one, and before the files are moved into place.
+    threads : int or None
+        Files written at once (None: one per core).
 
     Returns
     -------
@@ -594,7 +598,7 @@ def write_outputs(out_dir, files: dict, report, overwrite: bool = False, inputs=
             os.makedirs(os.path.join(d, "views"))
         # Several files at once: the EXR's compression runs outside the interpreter's lock.
         check_cancel()
-        thread_map(lambda rel: _write_one(_abs(new_dir, rel), files[rel]), rels, done=lambda _: check_cancel())
+        thread_map(lambda rel: _write_one(_abs(new_dir, rel), files[rel]), rels, threads, lambda _: check_cancel())
         contents = dict(report() if callable(report) else report)
         contents["files"] = plan.files
         _write_json(_abs(new_dir, REPORT), contents)
