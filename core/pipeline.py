@@ -144,6 +144,44 @@ def _transfer(bakes, masks, cells, sun, threads=None) -> list:
     return transfer
 
 
+def _occlusion(inputs, bakes, opt, progress):
+    """The occlusion transfer on its UV grid (:func:`core.geometry.transfer.occlusion_grid`), and its seconds."""
+    from .geometry.transfer import occlusion_grid
+
+    progress(0.0, "occlusion")
+    t = time.perf_counter()
+    cells = occlusion_grid(
+        inputs.mesh.tri_pos,
+        [b.uv for b in bakes],
+        [b.mask for b in bakes],
+        [b.normal for b in bakes],
+        [b.position for b in bakes],
+        [b.view_weight for b in bakes],
+        threads=opt.threads,
+    )
+    return cells, time.perf_counter() - t
+
+
+def _lighting_choice(problem, opt, progress):
+    """``(lam, variation, lighting)``: the options', with "auto" (None for lambda) decided from the photos.
+
+    ``variation`` is :func:`core.solve.lambda_choice.lighting_variation` where measured, else None.
+    """
+    from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
+    from .solve.lighting import choose_lighting
+
+    lam, variation, lighting = opt.lam, None, opt.lighting
+    if lam is None or lighting == "auto":
+        auto, variation = auto_lambda(problem)
+        if lam is None:
+            # With two stages the lighting stage wants a strong TV whatever the light does.
+            lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
+            progress(0.0, describe_lambda(lam, variation, auto=True))
+        if lighting == "auto":
+            lighting = choose_lighting(variation)
+    return lam, variation, lighting
+
+
 def _find_sun(problem, inputs, bakes, lighting, opt, progress):
     """The sun, found from the photos (option ``sun``), whose term becomes the transfer's last column.
 
@@ -275,20 +313,8 @@ def compute(
             check_cancel(cancel)
         cells = sun = sun_info = None
         if opt.occlusion and opt.method != "project":
-            from .geometry.transfer import occlusion_grid
-
-            solve_progress(0.0, "occlusion")
-            t_occ = time.perf_counter()
-            cells = occlusion_grid(
-                inputs.mesh.tri_pos,
-                uvs,
-                masks,
-                [b.normal for b in bakes],
-                [b.position for b in bakes],
-                weights,
-                threads=opt.threads,
-            )
-            occlusion_s, peaks["occlusion"] = time.perf_counter() - t_occ, peak_mb()
+            cells, occlusion_s = _occlusion(inputs, bakes, opt, solve_progress)
+            peaks["occlusion"] = peak_mb()
             check_cancel(cancel)
         problem = Problem(
             images=photos,
@@ -302,17 +328,7 @@ def compute(
         result = None
         lam, variation, lighting = opt.lam, None, opt.lighting
         if opt.method != "project":
-            from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
-            from .solve.lighting import choose_lighting
-
-            if lam is None or lighting == "auto":
-                auto, variation = auto_lambda(problem)
-                if lam is None:
-                    # With two stages the lighting stage wants a strong TV whatever the light does.
-                    lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
-                    solve_progress(0.0, describe_lambda(lam, variation, auto=True))
-                if lighting == "auto":
-                    lighting = choose_lighting(variation)
+            lam, variation, lighting = _lighting_choice(problem, opt, solve_progress)
             if opt.sun:
                 sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
                 check_cancel(cancel)
