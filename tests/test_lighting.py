@@ -203,6 +203,20 @@ def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixel
     assert error(half) < 1.12 * error(converged), (error(half), error(converged))
 
 
+def test_the_starts_built_ahead_are_the_ones_the_albedo_stage_solves():
+    # solve_two_stage builds them while the lighting stage runs; the albedo must be the same to the bit.
+    scene = sphere_scene(6, 60, 80, texture_size=128, n_cells=8, seed=3, noise=0.08)
+    problem = scene.problem
+    params = SolverParams(lam=20.0, max_texels_per_pixel=0.0)
+    builds = lighting._start_builds(problem, params)
+    assert sorted(builds) == [64]  # 128 starts from 64, which has pixels enough to start from itself
+    ahead = solve_albedo(problem, scene.sigma, params, builds=builds)
+    assert builds == {}  # taken as used, so that the larger levels do not hold it
+    inline = solve_albedo(problem, scene.sigma, params)
+    assert ahead.info["coarse_start"] == inline.info["coarse_start"]
+    np.testing.assert_array_equal(ahead.texture, inline.texture)
+
+
 def _with_sun_column(problem, scene, strength):
     """The problem with a sun-like last transfer column ``max(0, n . w)``, its photos lit by it at ``strength``."""
     from core.solve.sh import sh_basis

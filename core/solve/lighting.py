@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import Cancelled
 from ..memory import release_free_memory
+from ..parallel import joined, start
 from ..progress import sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
@@ -354,7 +355,7 @@ def thinned_for_lighting(problem, most: float):
     return problem
 
 
-def _half_size_start(problem, sigma, params, progress, cancel):
+def _half_size_start(problem, sigma, params, progress, cancel, builds=None):
     """:func:`solve_albedo` at half the size, sampled bilinearly at the texel centres of ``problem.texture``.
 
     Returns that texture (NaN where unseen) and a summary of the solve (its size and iterations).
@@ -367,9 +368,31 @@ def _half_size_start(problem, sigma, params, progress, cancel):
     )
     half = with_texture_size(problem, problem.texture.size // 2)
     warm = COARSE_START_DELTA_FACTOR * params.delta
-    coarse = solve_albedo(half, sigma, quick, None, progress, cancel, refine_iter=None, warm_delta=warm, merged=True)
+    coarse = solve_albedo(
+        half, sigma, quick, None, progress, cancel, refine_iter=None, warm_delta=warm, merged=True, builds=builds
+    )
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
     return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
+
+
+def _start_builds(problem, params) -> dict:
+    """The discretisations that :func:`solve_albedo`'s half-size starts solve, built ahead: ``{size: d}``.
+
+    They do not depend on the lighting, so :func:`solve_two_stage` builds them on a thread of their own while
+    the lighting stage runs. The same levels as :func:`solve_albedo` makes, by the same steps.
+    """
+    params = replace(params, lighting="fixed", albedo_lam=None).resolved()
+    if params.domain != "texture" or problem.texture is None:
+        return {}
+    if params.max_texels_per_pixel > 0:
+        size = supported_size(problem, params.max_texels_per_pixel)
+        if size < problem.texture.size:
+            problem = with_texture_size(problem, size)
+    out = {}
+    while problem.texture.size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
+        problem = with_texture_size(problem, problem.texture.size // 2)
+        out[problem.texture.size] = texture_domain(problem, data_model="merged", threads=params.threads)
+    return out
 
 
 def solve_albedo(
@@ -384,6 +407,7 @@ def solve_albedo(
     warm_delta=None,
     merged=False,
     views=True,
+    builds=None,
 ):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
@@ -416,6 +440,8 @@ def solve_albedo(
         in the result; the half-size starts use it.
     views : bool
         False: no per-view maps in a texture-domain result (as :func:`core.solve.solver.solve`).
+    builds : dict, optional
+        :func:`_start_builds`' discretisations of the half-size starts, taken out as they are used.
 
     Returns
     -------
@@ -441,6 +467,7 @@ def solve_albedo(
                 warm_delta=warm_delta,
                 merged=merged,
                 views=views,
+                builds=builds,
             )
             r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
             r.info["solved_size"] = size
@@ -450,13 +477,17 @@ def solve_albedo(
     size = problem.texture.size if domain == "texture" else 0
     if rho0 is None and size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
         # Solved before this size's problem is built, so that the two are not held at once.
-        half, coarse = _half_size_start(problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel)
+        half, coarse = _half_size_start(
+            problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel, builds
+        )
         progress = sub_progress(progress, 0.3, 1.0)
         if refine_iter is not None:
             params = replace(
                 params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter)
             )
     t_build0 = time.perf_counter()
+    if d is None and merged and builds and size in builds:
+        d = builds.pop(size)
     if d is None:
         d = (
             texture_domain(problem, data_model="merged" if merged else params.data_model, threads=params.threads)
@@ -592,15 +623,19 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     """
 
     t0 = time.perf_counter()
-
-    light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
+    albedo_params = replace(params, lam=params.albedo_lam)
+    # The albedo stage's starts are built while the lighting stage runs (its coarse levels leave a core idle).
+    with joined(start(_start_builds, problem, albedo_params, threads=params.threads)) as builds:
+        light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
+        builds = builds.result()
     first.views = None  # not needed: free them before the larger stage
     light_pixels = sum(int(m.sum()) for m in light_problem.masks)
     light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
     albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
-    albedo_params = replace(params, lam=params.albedo_lam)
-    second = solve_albedo(problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views)
+    second = solve_albedo(
+        problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views, builds=builds
+    )
     second.info["lighting_stage"] = {
         "iterations": first.iterations,
         "energy": first.energy[-1:],
