@@ -366,17 +366,32 @@ def _half_size_start(problem, sigma, params, progress, cancel, builds=None):
         min_iter=min(params.min_iter, COARSE_START_ITER),
         tol=max(params.tol, COARSE_START_TOL),
     )
-    half = with_texture_size(problem, problem.texture.size // 2)
+    size = problem.texture.size // 2
+    half, d = builds.pop(size) if builds and size in builds else (with_texture_size(problem, size), None)
     warm = COARSE_START_DELTA_FACTOR * params.delta
     coarse = solve_albedo(
-        half, sigma, quick, None, progress, cancel, refine_iter=None, warm_delta=warm, merged=True, builds=builds
+        half, sigma, quick, None, progress, cancel, d, refine_iter=None, warm_delta=warm, merged=True, builds=builds
     )
     fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
     return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
 
 
+def _starts_from_half(problem) -> bool:
+    """Whether :func:`solve_albedo` starts this texture-domain problem from its own solve at half the size."""
+    size = problem.texture.size
+    return size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS
+
+
+def _capped_size(problem, params):
+    """The texture size that ``params.max_texels_per_pixel`` solves this problem at, if smaller; else None."""
+    if params.domain != "texture" or params.max_texels_per_pixel <= 0 or problem.texture is None:
+        return None
+    size = supported_size(problem, params.max_texels_per_pixel)
+    return size if size < problem.texture.size else None
+
+
 def _start_builds(problem, params) -> dict:
-    """The discretisations that :func:`solve_albedo`'s half-size starts solve, built ahead: ``{size: d}``.
+    """The half-size starts :func:`solve_albedo` solves, built ahead: ``{size: (problem, discretisation)}``.
 
     They do not depend on the lighting, so :func:`solve_two_stage` builds them on a thread of their own while
     the lighting stage runs. The same levels as :func:`solve_albedo` makes, by the same steps.
@@ -384,14 +399,13 @@ def _start_builds(problem, params) -> dict:
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     if params.domain != "texture" or problem.texture is None:
         return {}
-    if params.max_texels_per_pixel > 0:
-        size = supported_size(problem, params.max_texels_per_pixel)
-        if size < problem.texture.size:
-            problem = with_texture_size(problem, size)
+    capped = _capped_size(problem, params)
+    if capped is not None:
+        problem = with_texture_size(problem, capped)
     out = {}
-    while problem.texture.size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
+    while _starts_from_half(problem):
         problem = with_texture_size(problem, problem.texture.size // 2)
-        out[problem.texture.size] = texture_domain(problem, data_model="merged", threads=params.threads)
+        out[problem.texture.size] = (problem, texture_domain(problem, data_model="merged", threads=params.threads))
     return out
 
 
@@ -441,7 +455,7 @@ def solve_albedo(
     views : bool
         False: no per-view maps in a texture-domain result (as :func:`core.solve.solver.solve`).
     builds : dict, optional
-        :func:`_start_builds`' discretisations of the half-size starts, taken out as they are used.
+        :func:`_start_builds`' half-size starts, taken out as they are used.
 
     Returns
     -------
@@ -453,29 +467,27 @@ def solve_albedo(
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
     sigma = np.asarray(sigma, dtype=np.float64)
-    if d is None and params.domain == "texture" and params.max_texels_per_pixel > 0 and problem.texture is not None:
-        size = supported_size(problem, params.max_texels_per_pixel)
-        if size < problem.texture.size:
-            r = solve_albedo(
-                with_texture_size(problem, size),
-                sigma,
-                replace(params, max_texels_per_pixel=0.0),
-                None,
-                progress,
-                cancel,
-                refine_iter=refine_iter,
-                warm_delta=warm_delta,
-                merged=merged,
-                views=views,
-                builds=builds,
-            )
-            r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
-            r.info["solved_size"] = size
-            return r
+    size = None if d is not None else _capped_size(problem, params)
+    if size is not None:
+        r = solve_albedo(
+            with_texture_size(problem, size),
+            sigma,
+            replace(params, max_texels_per_pixel=0.0),
+            None,
+            progress,
+            cancel,
+            refine_iter=refine_iter,
+            warm_delta=warm_delta,
+            merged=merged,
+            views=views,
+            builds=builds,
+        )
+        r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
+        r.info["solved_size"] = size
+        return r
     half = coarse = None
     domain = params.domain if d is None else d.domain
-    size = problem.texture.size if domain == "texture" else 0
-    if rho0 is None and size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS:
+    if rho0 is None and domain == "texture" and _starts_from_half(problem):
         # Solved before this size's problem is built, so that the two are not held at once.
         half, coarse = _half_size_start(
             problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel, builds
@@ -486,8 +498,6 @@ def solve_albedo(
                 params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter)
             )
     t_build0 = time.perf_counter()
-    if d is None and merged and builds and size in builds:
-        d = builds.pop(size)
     if d is None:
         d = (
             texture_domain(problem, data_model="merged" if merged else params.data_model, threads=params.threads)

@@ -169,13 +169,15 @@ class Problem:
             self._check_transfer()
         if self.correspondences is not None:
             self._check_correspondences()
-        if self.texture is not None and self.uv is None:
+        self._check_layout(self.texture)
+
+    def _check_layout(self, texture):
+        if texture is not None and self.uv is None:
             _fail("problem: a texture layout needs per-pixel uv")
 
     def on_layout(self, texture: TextureLayout) -> Problem:
         """The same photos on another texture layout, without checking them again (they were, once)."""
-        if texture is not None and self.uv is None:
-            _fail("problem: a texture layout needs per-pixel uv")
+        self._check_layout(texture)
         out = copy.copy(self)
         out.texture = texture
         return out
