@@ -103,6 +103,13 @@ def test_interpolated_data_term_is_zero_at_the_truth(textured):
     assert data["interpolate"] < 1e-3 * data["splat"], data
 
 
+def test_observations_run_in_pixel_order_for_every_data_model(textured):
+    # The pixel sums (Discretization._sum_matrix) take each pixel's observations as one run.
+    for model in ("interpolate", "splat", "nearest", "merged"):
+        d = texture_domain(textured.problem, data_model=model)
+        assert np.all(np.diff(d.obs_pixel) >= 0), model
+
+
 def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured):
     splat = texture_domain(textured.problem, data_model="splat")
     near = texture_domain(textured.problem, data_model="nearest")

@@ -371,8 +371,7 @@ def texture_domain(
     n = texels.size
     w_obs *= n / w_obs.sum()
     rows = start(_texel_rows, problem.texture, texels, lut, max_edge_ratio, threads=threads)
-    order = np.argsort(pix_obs, kind="stable")
-    obs_unknown, pix_obs, w_obs = lut[tex_obs][order], pix_obs[order], w_obs[order]
+    obs_unknown = lut[tex_obs]  # the observations are in pixel order already (_splats, _merged_per_view)
     B, BT, B2T, base = rows.result()
     obs_matrix = None
     if data_model == "interpolate":
@@ -406,7 +405,8 @@ def texture_domain(
 
 
 def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False, threads: int | None = None):
-    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight.
+    """Every (pixel, texel) pair with a bilinear weight > 0: flat texel, pixel, and weight times view_weight,
+    in pixel order (the order the discretisation keeps).
 
     With ``nearest``, only the pixel's texel of largest bilinear weight, carrying the pixel's whole weight.
     The views on up to ``threads`` threads.

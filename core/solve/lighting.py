@@ -462,7 +462,7 @@ def solve_albedo(
     core.solve.solver.Result
         With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
     """
-    from .solver import Result, _Channel, _outputs, channel_threads
+    from .solver import Result, _Channel, _outputs, channel_threads, release_after_iteration
 
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
@@ -537,13 +537,14 @@ def solve_albedo(
                 if cancel is not None and cancel():
                     raise Cancelled("cancelled by the user")
                 history.append(sum(pool.map(lambda ch: ch.step(), channels)))
-                release_free_memory()
+                release_after_iteration(d)
                 it += 1
                 if progress is not None:
                     progress(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
                 prev, cur = history[-2], history[-1]
                 if it - start >= least and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
                     break
+    release_free_memory()
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = sigma.copy()
     for c, ch in enumerate(channels):

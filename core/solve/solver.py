@@ -278,6 +278,19 @@ class Result:
 SERIAL_OBSERVATIONS = 150_000
 
 
+#: From this many observations the solver's loops give glibc's freed pages back after every iteration
+#: (:func:`release_after_iteration`): a channel's temporaries are then tens of MB and the peak is at stake.
+#: Below it the pages are kept through the level and given back at its end: trimmed every iteration, they were
+#: only faulted in again the next (docs/measurements.md).
+TRIM_OBSERVATIONS = 1_000_000
+
+
+def release_after_iteration(d: Discretization) -> None:
+    """After an iteration on ``d``: :func:`core.memory.release_free_memory` if ``d`` is large enough."""
+    if d.obs_pixel.size >= TRIM_OBSERVATIONS:
+        release_free_memory()
+
+
 def channel_threads(params: SolverParams, channels: int, observations: int | None = None) -> int:
     """Threads for the channels' pool: one per channel, or ``params.threads`` if that is fewer.
 
@@ -706,7 +719,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
         for it in range(1, params.max_iter + 1):
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
-            release_free_memory()
+            release_after_iteration(channels[0].d)
             elapsed.append(time.perf_counter() - t0)
             report(it, history[-1])
             prev, cur = history[-2], history[-1]
@@ -714,6 +727,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
                 break
     finally:
         pool.shutdown(wait=True)
+        release_free_memory()
     return history, elapsed
 
 
