@@ -1,6 +1,8 @@
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
+from core.solve import spmv
 from core.solve.spmv import PairNormal, matvec_into
 
 
@@ -27,8 +29,12 @@ def test_matvec_into_falls_back_to_the_product_for_other_dtypes():
     np.testing.assert_allclose(out64, A.T @ np.ones(300, np.float32), rtol=1e-5)
 
 
-def test_pair_normal_is_the_weighted_normal_matrix_off_its_diagonal():
-    # Rows c1 x_a + c2 x_b, one of them twice (two rows between the same unknowns are summed).
+@pytest.mark.parametrize("block", [None, 7])
+def test_pair_normal_is_the_weighted_normal_matrix_off_its_diagonal(monkeypatch, block):
+    # Rows c1 x_a + c2 x_b, one of them twice (two rows between the same unknowns are summed). The entries are
+    # gathered in blocks; 7 makes many, and a last one that is short.
+    if block is not None:
+        monkeypatch.setattr(spmv, "_TAKE_BLOCK", block)
     rng = np.random.default_rng(2)
     a = rng.integers(0, 50, 120)
     b = (a + rng.integers(1, 49, 120)) % 50

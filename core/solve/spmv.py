@@ -19,6 +19,8 @@ except ImportError:  # pragma: no cover - a scipy without it gets the allocating
 
 __all__ = ["matvec_into", "PairNormal"]
 
+_TAKE_BLOCK = 1 << 20
+
 
 def matvec_into(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out[:] = A @ x`` for a CSR matrix ``A``; returns ``out``.
@@ -72,7 +74,11 @@ class PairNormal:
 
     def values(self, s: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The entries for row weights ``s`` (B's dtype), into ``out`` (one per entry of ``B^T``)."""
-        return np.take(self.coef * s, self.edge, out=out)
+        weighted = self.coef * s
+        # In blocks: np.take casts int32 indices to a new intp array, which over all entries is twice out's size.
+        for a in range(0, self.edge.size, _TAKE_BLOCK):
+            np.take(weighted, self.edge[a : a + _TAKE_BLOCK], out=out[a : a + _TAKE_BLOCK])
+        return out
 
     def matvec_into(self, values: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``out[:] = L x`` with the entries ``values`` (x, out and values of one dtype, contiguous)."""
