@@ -4,7 +4,7 @@ import pytest
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
 from core.solve.discretization import texture_domain
-from core.solve.edges import edge_weights
+from core.solve.edges import edge_weights, with_edges_freed
 from core.solve.lighting import shading_error, solve_albedo
 from core.solve.solver import SolverParams, solve
 
@@ -29,6 +29,18 @@ def test_edge_weights_free_the_changes_of_colour_and_hold_those_of_brightness():
     assert np.all(w[hue] < 0.05)  # a new hue: freed
     # Relative to the albedo's scale: the same weights for the albedo at any scale.
     np.testing.assert_allclose(edge_weights(d, 3.0 * rho, 0.003), w, rtol=1e-5)
+
+
+def test_edges_freed_on_a_used_problem_give_the_new_row_weights():
+    # The copy shares the observations, but not the row weights that its source made before.
+    scene = sphere_scene(n_views=4, height=60, width=80, texture_size=16, n_cells=6, seed=1)
+    d = texture_domain(scene.problem)
+    before = d.row_weights(2.0, 0.0, np.float32)
+    freed = with_edges_freed(d, np.where((d.texel_index % 16 < 8)[:, None], [0.5, 0.3, 0.2], [0.2, 0.3, 0.5]), 0.003)
+    np.testing.assert_array_equal(freed.row_weights(2.0, 0.0, np.float32), (2.0 * freed.base).astype(np.float32))
+    assert np.any(freed.row_weights(2.0, 0.0, np.float32) < before)
+    np.testing.assert_array_equal(d.row_weights(2.0, 0.0, np.float32), before)
+    assert freed.obs_pixel is d.obs_pixel
 
 
 def test_the_lighting_stage_with_its_edges_freed_finds_a_better_lighting():

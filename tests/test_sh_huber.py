@@ -1,7 +1,7 @@
 import numpy as np
 
 from core.solve.huber import huber, majorant, mm_weight
-from core.solve.sh import sh_basis, weighted_gram
+from core.solve.sh import sh_basis, view_normal_equations, weighted_gram
 
 
 def test_sh_basis_matches_closed_form():
@@ -23,6 +23,15 @@ def test_weighted_gram_sums_the_weighted_outer_products():
     M32 = weighted_gram(nu.astype(np.float32), w)
     assert M32.dtype == np.float32
     np.testing.assert_allclose(M32, M, rtol=1e-5)
+    # From nu's transpose with contiguous rows, and per view from one kept transpose (a slice of its columns).
+    np.testing.assert_allclose(weighted_gram(nu, w, np.ascontiguousarray(nu.T)), M, rtol=1e-12)
+    offsets = np.array([0, 3, 7])
+    nu32 = nu.astype(np.float32)
+    Ms, bs = view_normal_equations(nu32, offsets, w, w, np.float32, np.ascontiguousarray(nu32.T))
+    for v in range(2):
+        lo, hi = offsets[v], offsets[v + 1]
+        np.testing.assert_allclose(Ms[v], weighted_gram(nu[lo:hi], w[lo:hi]), rtol=1e-5)
+        np.testing.assert_allclose(bs[v], w[lo:hi] @ nu[lo:hi], rtol=1e-5)
 
 
 def test_majorant_is_above_huber_and_touches_at_x0():

@@ -49,6 +49,7 @@ domain and the splat).
 
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass
 
@@ -104,6 +105,7 @@ class Discretization:
         self._matrices = None
         self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
         self._pair = None
+        self._nu_t = None
         self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
         self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 
@@ -161,6 +163,13 @@ class Discretization:
             self._sums[onto] = m
         return self._sums[onto]
 
+    def nu_by_coefficient(self) -> np.ndarray:
+        """``nu.T`` with contiguous rows, ``(K, P)`` (kept): the sigma-step's normal matrices weight it faster."""
+        with self._lock:
+            if self._nu_t is None:
+                self._nu_t = np.ascontiguousarray(self.nu.T)
+        return self._nu_t
+
     def pair_normal(self):
         """:class:`core.solve.spmv.PairNormal` of B (kept), or None when B's rows are not all pairs."""
         with self._lock:
@@ -185,6 +194,14 @@ class Discretization:
         s[: self.n_tv] *= lam
         s[self.n_tv :] *= mu
         return s
+
+    def with_base(self, base: np.ndarray) -> Discretization:
+        """A shallow copy with other row weights ``base``: it shares the observations and the kept matrices, and
+        makes its own :meth:`row_weights`."""
+        out = copy.copy(self)
+        out.base = base
+        out._row_weights = {}
+        return out
 
     def row_weights(self, lam: float, mu: float, dtype) -> np.ndarray:
         """:meth:`row_scale` in ``dtype``, made once and shared, read-only, by the channels' threads."""

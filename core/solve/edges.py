@@ -14,8 +14,6 @@ the changes of colour keep their height.
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
@@ -42,9 +40,7 @@ def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
 
 def with_edges_freed(d, rho: np.ndarray, eps: float):
     """A shallow copy of ``d`` whose TV rows are weighted by :func:`edge_weights` of ``rho``; ``d`` keeps its own."""
-    out = copy.copy(d)
-    out.base = (d.base * edge_weights(d, rho, eps)).astype(np.float32)
-    return out
+    return d.with_base((d.base * edge_weights(d, rho, eps)).astype(np.float32))
 
 
 def reweighted_lighting(problem, first, params, progress=None, cancel=None):

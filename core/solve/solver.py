@@ -477,7 +477,7 @@ class _Channel:
         wr *= rho_o
         g = d.pixel_sum(wr)
         # float32 products (BLAS); the energy check in sigma_step guards the result.
-        return view_normal_equations(d.nu, d.pixel_offsets, g, h, np.float32)
+        return view_normal_equations(d.nu, d.pixel_offsets, g, h, np.float32, d.nu_by_coefficient())
 
     def sigma_step(self):
         if self.lighting == "fixed":
