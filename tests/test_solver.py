@@ -104,10 +104,23 @@ def test_interpolated_data_term_is_zero_at_the_truth(textured):
 
 
 def test_observations_run_in_pixel_order_for_every_data_model(textured):
-    # The pixel sums (Discretization._sum_matrix) take each pixel's observations as one run.
+    # The merged data model takes each view's observations as one run, and the interpolated one each pixel's.
     for model in ("interpolate", "splat", "nearest", "merged"):
         d = texture_domain(textured.problem, data_model=model)
         assert np.all(np.diff(d.obs_pixel) >= 0), model
+
+
+def test_the_data_term_in_chunks_is_the_data_term(fixed, monkeypatch):
+    # With one unknown per observation the rho-step and the energy take the observations in chunks (7: many, the
+    # last one short), with no array over all of them: the same solve as in one chunk, to float32 round-off.
+    from core.solve import solver
+
+    params = SolverParams(lam=0.5, max_iter=6, min_iter=6, levels=1, data_model="splat")
+    whole = solve(fixed.problem, params)
+    monkeypatch.setattr(solver, "_CHUNK", 7)
+    chunked = solve(fixed.problem, params)
+    np.testing.assert_allclose(chunked.energy, whole.energy, rtol=1e-5)
+    np.testing.assert_allclose(chunked.texture[chunked.seen], whole.texture[whole.seen], rtol=1e-4, atol=1e-5)
 
 
 def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured):

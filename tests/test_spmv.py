@@ -3,7 +3,7 @@ import pytest
 import scipy.sparse as sp
 
 from core.solve import spmv
-from core.solve.spmv import PairNormal, matvec_into
+from core.solve.spmv import PairNormal, matvec_into, scatter_add
 
 
 def _matrix():
@@ -27,6 +27,31 @@ def test_matvec_into_falls_back_to_the_product_for_other_dtypes():
     out64 = np.empty(200)
     matvec_into(A.T.tocsr(), np.ones(300, np.float32), out64)
     np.testing.assert_allclose(out64, A.T @ np.ones(300, np.float32), rtol=1e-5)
+
+
+@pytest.mark.parametrize("block", [None, 7])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_scatter_add_sums_in_order_as_a_sparse_product(monkeypatch, block, dtype):
+    # Columns taken in blocks (7: many, the last one short). Each entry's terms are summed in their order, as a
+    # loop does and as scipy's CSR product over the same entries does: the same bits.
+    if block is not None:
+        monkeypatch.setattr(spmv, "_SCATTER_BLOCK", block)
+    rng = np.random.default_rng(3)
+    index = rng.integers(0, 40, 500)
+    x = (rng.standard_normal(500) * 10.0 ** rng.integers(-3, 4, 500)).astype(dtype)
+    looped = np.zeros(41, dtype)
+    for i, v in zip(index, x):
+        looped[i] += v
+    out = np.zeros(41, dtype)
+    assert scatter_add(index, x, out) is out
+    np.testing.assert_array_equal(out, looped)
+    S = sp.csr_matrix((np.ones(500, dtype), (index, np.arange(500))), shape=(41, 500))
+    np.testing.assert_array_equal(out, S @ x)
+    assert out[40] == 0  # an index that no entry has
+    # Added to what out holds.
+    np.testing.assert_array_equal(
+        scatter_add(index, np.ones(500, dtype), np.full(41, 2, dtype)), 2 + np.bincount(index, minlength=41)
+    )
 
 
 @pytest.mark.parametrize("block", [None, 7])

@@ -61,7 +61,7 @@ from ..geometry.texels import bilinear_texels
 from ..parallel import start, thread_map
 from .problem import Problem, stacked_rows
 from .sh import sh_basis
-from .spmv import PairNormal, matvec_into
+from .spmv import PairNormal, scatter_add
 
 __all__ = ["Discretization", "image_domain", "texture_domain"]
 
@@ -103,7 +103,6 @@ class Discretization:
 
     def __post_init__(self):
         self._matrices = None
-        self._sums = {}  # "unknown", "pixel": float32 CSR matrices that sum observations
         self._pair = None
         self._nu_t = None
         self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
@@ -125,12 +124,11 @@ class Discretization:
     def scatter(self, x: np.ndarray, squared: bool = False) -> np.ndarray:
         """``A^T x``, or with ``squared`` the same with A's entries squared: observations summed onto unknowns.
 
-        float32 in, float32 out (a sparse product, which runs outside the GIL); other dtypes are summed in
-        float64.
+        float32 in, float32 out (outside the GIL); other dtypes are summed in float64.
         """
         if self.diagonal_data:
             if x.dtype == np.float32:
-                return _sum(self._sum_matrix("unknown"), x)
+                return scatter_add(self.obs_unknown, x, np.zeros(self.n_unknowns, np.float32))
             return np.bincount(self.obs_unknown, weights=x, minlength=self.n_unknowns)
         _, AT, A2T = self.observation_matrices()
         return (A2T if squared else AT) @ x
@@ -138,30 +136,8 @@ class Discretization:
     def pixel_sum(self, x: np.ndarray) -> np.ndarray:
         """Observations summed onto their pixels, ``(P,)``; float32 as :meth:`scatter`, others in float64."""
         if x.dtype == np.float32:
-            return _sum(self._sum_matrix("pixel"), x)
+            return scatter_add(self.obs_pixel, x, np.zeros(self.nu.shape[0], np.float32))
         return np.bincount(self.obs_pixel, weights=x, minlength=self.nu.shape[0])
-
-    def _sum_matrix(self, onto: str):
-        """The 0/1 float32 CSR matrix that sums the observations onto the unknowns or the pixels (kept)."""
-        with self._lock:
-            return self._sum_matrix_locked(onto)
-
-    def _sum_matrix_locked(self, onto: str):
-        if onto not in self._sums:
-            o = self.obs_pixel.size
-            other = next(iter(self._sums.values()), None)
-            ones = np.ones(o, np.float32) if other is None else other.data  # shared by both
-            if onto == "pixel":  # obs_pixel is sorted: each pixel's observations are a run
-                indptr = np.searchsorted(self.obs_pixel, np.arange(self.nu.shape[0] + 1))
-                idx = np.int32 if o < 2**31 else np.int64
-                m = sp.csr_matrix(
-                    (ones, np.arange(o, dtype=idx), indptr.astype(idx)), shape=(self.nu.shape[0], o), copy=False
-                )
-            else:
-                m = sp.csr_matrix((ones, (self.obs_unknown, np.arange(o))), shape=(self.n_unknowns, o))
-                m.data = ones
-            self._sums[onto] = m
-        return self._sums[onto]
 
     def nu_by_coefficient(self) -> np.ndarray:
         """``nu.T`` with contiguous rows, ``(K, P)`` (kept): the sigma-step's normal matrices weight it faster."""
@@ -212,10 +188,6 @@ class Discretization:
                 s.flags.writeable = False
                 self._row_weights[key] = s
             return self._row_weights[key]
-
-
-def _sum(A, x):
-    return matvec_into(A, x, np.empty(A.shape[0], x.dtype))
 
 
 def _masked_pixels(problem: Problem):

@@ -58,7 +58,7 @@ from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import diffuse, view_normal_equations
-from .spmv import matvec_into
+from .spmv import matvec_into, scatter_add
 
 __all__ = ["SolverParams", "Result", "solve", "energy"]
 
@@ -329,12 +329,23 @@ def _weighted_huber(x, w, delta):
     return total
 
 
-def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None):
-    """One channel's energy; ``rows``, if given, is a buffer for ``B @ rho`` in rho's dtype."""
-    r = d.gather(rho)  # a new array: the residual is made in it
-    r *= obs_shade
-    r -= obs_values
-    data = _weighted_huber(r, d.obs_weight, delta)
+def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None, chunk=None):
+    """One channel's energy; ``rows``, if given, is a buffer for ``B @ rho`` in rho's dtype, ``chunk`` one of
+    :data:`_CHUNK` for the residuals (with a diagonal data term)."""
+    if d.diagonal_data:  # the residual chunk by chunk: no array over all observations
+        chunk = np.empty(min(_CHUNK, d.obs_unknown.size), rho.dtype) if chunk is None else chunk
+        data = 0.0
+        for lo in range(0, d.obs_unknown.size, _CHUNK):
+            hi = min(lo + _CHUNK, d.obs_unknown.size)
+            r = np.take(rho, d.obs_unknown[lo:hi], out=chunk[: hi - lo], mode="clip")  # "clip": unbuffered
+            r *= obs_shade[lo:hi]
+            r -= obs_values[lo:hi]
+            data += _weighted_huber(r, d.obs_weight[lo:hi], delta)
+    else:
+        r = d.gather(rho)  # a new array: the residual is made in it
+        r *= obs_shade
+        r -= obs_values
+        data = _weighted_huber(r, d.obs_weight, delta)
     if not d.B.shape[0]:
         return data
     Brho = d.B @ rho if rows is None else matvec_into(d.B, rho, rows)
@@ -376,6 +387,11 @@ class _Channel:
         self._Bx = np.empty(d.B.shape[0], self.ft)
         self._sw = np.empty(d.B.shape[0], self.ft)
         self._pair_values = None  # the rho-step's B^T diag(sw) B (core.solve.spmv.PairNormal), made on first use
+        # With a diagonal data term the observations are worked on in chunks (kept): no array over all of them.
+        self._chunk = self._chunk2 = None
+        if d.diagonal_data:
+            k = min(_CHUNK, d.obs_unknown.size)
+            self._chunk, self._chunk2 = np.empty(k, self.ft), np.empty(k, self.ft)
         # Gathered once per change: the observations' values and shading.
         self.obs_values = d.from_pixels(self.values).astype(self.ft)
         self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
@@ -394,33 +410,52 @@ class _Channel:
             self.s_ft,
             self.delta,
             rows=self._Bx,
+            chunk=self._chunk,
         )
         if self.coupling is not None:  # the lighting prior is part of the energy
             e += self.coupling.penalty(self.sigma if sigma is None else sigma, world)
         return e
 
-    def data_weights(self, rho_o):
-        """beta * the majorant's curvature at the current residuals (one new array)."""
-        w = np.multiply(rho_o, self.obs_shade)
-        w -= self.obs_values
+    def data_weights(self, rho_o, lo=0, hi=None, out=None):
+        """beta * the majorant's curvature at the current residuals, over observations ``lo:hi`` (into ``out``,
+        which may be ``rho_o``, or a new array)."""
+        w = np.multiply(rho_o, self.obs_shade[lo:hi], out=out)
+        w -= self.obs_values[lo:hi]
         mm_weight(w, self.delta, out=w)
-        w *= self.d.obs_weight
+        w *= self.d.obs_weight[lo:hi]
         return w
+
+    def _data_normal(self):
+        """The data term's right-hand side ``A^T (w a I)`` and diagonal ``A^T (w a^2)`` (diagonal data), chunk by
+        chunk in the kept buffers."""
+        d, a = self.d, self.obs_shade
+        rhs, diag = np.zeros(d.n_unknowns, self.ft), np.zeros(d.n_unknowns, self.ft)
+        for lo in range(0, d.obs_unknown.size, _CHUNK):
+            hi = min(lo + _CHUNK, d.obs_unknown.size)
+            idx = d.obs_unknown[lo:hi]
+            w = np.take(self.rho, idx, out=self._chunk[: hi - lo], mode="clip")
+            self.data_weights(w, lo, hi, out=w)
+            w *= a[lo:hi]  # w a
+            scatter_add(idx, np.multiply(w, self.obs_values[lo:hi], out=self._chunk2[: hi - lo]), rhs)
+            w *= a[lo:hi]  # w a^2
+            scatter_add(idx, w, diag)
+        return rhs, diag
 
     def rho_step(self):
         d = self.d
         a = self.obs_shade
-        rho_o = d.gather(self.rho)
-        waa = self.data_weights(rho_o)
-        waa *= a  # w a
-        rhs = d.scatter(np.multiply(waa, self.obs_values, out=rho_o)).astype(self.ft, copy=False)
-        waa *= a  # w a^2
-        del rho_o
-        jacobi = d.scatter(waa, squared=True).astype(self.ft, copy=False)
         if d.diagonal_data:
+            rhs, jacobi = self._data_normal()
             diag = jacobi
             data = lambda x: diag * x  # noqa: E731
         else:
+            rho_o = d.gather(self.rho)
+            waa = self.data_weights(rho_o)
+            waa *= a  # w a
+            rhs = d.scatter(np.multiply(waa, self.obs_values, out=rho_o)).astype(self.ft, copy=False)
+            waa *= a  # w a^2
+            del rho_o
+            jacobi = d.scatter(waa, squared=True).astype(self.ft, copy=False)
             data = lambda x: d.scatter(waa * d.gather(x))  # noqa: E731
         pair = d.pair_normal() if self.hierarchy is None else None
         if d.B.shape[0]:

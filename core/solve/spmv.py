@@ -12,14 +12,42 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # scipy's kernel behind ``A @ x`` for CSR matrices; it adds A x into y.
+try:  # scipy's kernels behind ``A @ x`` for CSR and CSC matrices; they add A x into y, outside the GIL.
+    from scipy.sparse._sparsetools import csc_matvec as _csc_matvec
     from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
-except ImportError:  # pragma: no cover - a scipy without it gets the allocating product
-    _csr_matvec = None
+except ImportError:  # pragma: no cover - a scipy without them gets the allocating product and np.bincount
+    _csr_matvec = _csc_matvec = None
 
-__all__ = ["matvec_into", "PairNormal"]
+__all__ = ["matvec_into", "scatter_add", "PairNormal"]
 
 _TAKE_BLOCK = 1 << 20
+_SCATTER_BLOCK = 1 << 18  # its constants are kept: 3 MB
+_scatter_consts = {}  # (dtype, block): ones, or for an index dtype 0..block, for scatter_add's one-entry columns
+
+
+def _scatter_const(dtype, make):
+    key = (np.dtype(dtype), _SCATTER_BLOCK)
+    if key not in _scatter_consts:  # two threads may both make it: the same values either way
+        _scatter_consts[key] = make(key[0])
+    return _scatter_consts[key]
+
+
+def scatter_add(index: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out[index[k]] += x[k]`` for every k, in the order of k; returns ``out``.
+
+    A product with the matrix whose column k holds a single 1 in row ``index[k]``, taken in blocks of columns:
+    no matrix is stored, and each entry of ``out`` sums its terms in the order of k, as a CSR product over the
+    same entries does (the same float32 sums). x and out share a float dtype; both contiguous.
+    """
+    if _csc_matvec is None:  # pragma: no cover
+        out += np.bincount(index, weights=x, minlength=out.size).astype(out.dtype, copy=False)
+        return out
+    ones = _scatter_const(x.dtype, lambda t: np.ones(_SCATTER_BLOCK, t))
+    ptr = _scatter_const(index.dtype, lambda t: np.arange(_SCATTER_BLOCK + 1, dtype=t))
+    for a in range(0, index.size, _SCATTER_BLOCK):
+        k = min(_SCATTER_BLOCK, index.size - a)
+        _csc_matvec(out.size, k, ptr[: k + 1], index[a : a + k], ones, x[a : a + k], out)
+    return out
 
 
 def matvec_into(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
