@@ -217,6 +217,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     auto_lambda: spec_property("auto_lambda")
     lam: spec_property("lam")
     albedo_lam: spec_property("albedo_lam")
+    albedo_adapt: spec_property("albedo_adapt")
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
     sun: spec_property("sun")
@@ -257,6 +258,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             selected_only=self.cameras == "SELECTED",
             lam=None if self.auto_lambda else self.lam,
             albedo_lam=self.albedo_lam,
+            albedo_adapt=self.albedo_adapt,
             lighting=self.lighting,
             occlusion=self.occlusion,
             sun=self.sun,

@@ -30,6 +30,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     auto_lambda: spec_property("auto_lambda")
     lam: spec_property("lam", clamp=True)
     albedo_lam: spec_property("albedo_lam", clamp=True)
+    albedo_adapt: spec_property("albedo_adapt")
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
     sun: spec_property("sun")
@@ -51,6 +52,7 @@ _SAME = (
     "auto_lambda",
     "lam",
     "albedo_lam",
+    "albedo_adapt",
     "lighting",
     "occlusion",
     "sun",
@@ -105,6 +107,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         row.active = not s.auto_lambda
         row.prop(s, "lam")
         sub.prop(s, "albedo_lam")
+        sub.prop(s, "albedo_adapt")
         sub.prop(s, "lighting")
         sub.prop(s, "occlusion")
         sub.prop(s, "sun")

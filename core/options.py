@@ -212,6 +212,16 @@ SPEC = (
         noun="albedo lambda",
     ),
     Option(
+        "albedo_adapt",
+        "bool",
+        _SOLVER.albedo_adapt,
+        "Albedo lambda from texture",
+        "Scale the albedo lambda by how much fine colour texture the photos show: less smoothing where the "
+        "albedo changes colour everywhere, more on flat patches (the albedo lambda is then the weight for an "
+        "average texture)",
+        flag="--albedo-adapt",
+    ),
+    Option(
         "lighting",
         "choice",
         "auto",
@@ -417,6 +427,7 @@ RUN_FIELDS = (
     "selected_only",
     "lam",
     "albedo_lam",
+    "albedo_adapt",
     "lighting",
     "occlusion",
     "sun",

@@ -347,6 +347,7 @@ def compute(
                 mu=float(opt.mu),
                 max_iter=int(opt.max_iter),
                 albedo_lam=opt.albedo_lam,
+                albedo_adapt=bool(opt.albedo_adapt),
                 lighting=lighting,
                 threads=opt.threads,
             )
@@ -400,7 +401,7 @@ def compute(
             result.info,
             lam=lam,
             lighting_variation=variation,
-            albedo_lam=opt.albedo_lam,
+            albedo_lam=result.info.get("albedo_lam", opt.albedo_lam),
             lighting_mode=lighting,
             occlusion=bool(opt.occlusion),
             occlusion_seconds=occlusion_s,

@@ -160,8 +160,9 @@ def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     assert seen.sum() > 0.4 * N * N
     e_coarse = scaled_rmse(coarse.albedo, albedo, seen)
     e_fine = scaled_rmse(fine.albedo, albedo, seen)
-    # Measured: 0.200 (working resolution) against 0.077 (detail) in each channel.
-    assert np.all(e_fine < 0.5 * e_coarse), (e_fine, e_coarse)
+    # Measured: 0.135 (working resolution; 0.200 before its albedo weight followed the colour texture) against
+    # 0.073 (detail) in each channel.
+    assert np.all(e_fine < 0.65 * e_coarse), (e_fine, e_coarse)
     # Streamed: each view's photo read once, never two alive at a time; the stage is timed.
     assert loads.calls == len(scene[3]) and loads.max_alive == 0
     assert "detail" in t1 and "detail" not in t0

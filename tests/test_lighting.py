@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -6,7 +8,11 @@ from core.evaluate.synthetic import sphere_scene
 from core.solve import lighting
 from core.solve.discretization import texture_domain
 from core.solve.lighting import (
+    COLOUR_TEXTURE_RANGE,
+    COLOUR_TEXTURE_REFERENCE,
     NEAREST_MIN_PIXELS_PER_TEXEL,
+    adapted_albedo_lam,
+    colour_texture,
     fit_lighting,
     lighting_data_model,
     lighting_stage,
@@ -112,10 +118,13 @@ def test_known_lighting_recovers_the_albedo(exposed):
 
 def test_two_stages_report_both(exposed):
     _, problem, _ = exposed
-    r = solve(
-        problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5, light_size=16)
-    )
-    assert r.info["albedo_lam"] == 0.3
+    params = SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5, light_size=16)
+    r = solve(problem, params)
+    # The albedo stage's weight follows the colour texture the lighting stage's division shows.
+    assert np.isfinite(r.info["colour_texture"])
+    assert r.info["albedo_lam"] == adapted_albedo_lam(0.3, r.info["colour_texture"]) != 0.3
+    fixed = solve(problem, replace(params, albedo_adapt=False))
+    assert fixed.info["albedo_lam"] == 0.3 and fixed.info["colour_texture"] is None
     assert r.info["lighting_stage"]["lighting"] == "shared"
     assert r.info["lighting_stage"]["solved_size"] == 16
     assert r.texture.shape == (32, 32, 3) and np.isfinite(r.texture[r.seen]).all()
@@ -123,6 +132,43 @@ def test_two_stages_report_both(exposed):
     for c in range(3):
         s, g = split_gains(r.sigma[:, c])
         assert np.allclose(g[:, None] * s, r.sigma[:, c], atol=1e-6 * np.abs(s).max())
+
+
+def _patterned(scene, colour):
+    """The scene's photos times a pattern fixed on the surface (a checker of texels), in ``colour``."""
+    p = scene.problem
+    n = p.texture.size
+    images = []
+    for im, m, uv in zip(p.images, p.masks, p.uv):
+        cell = np.floor(np.nan_to_num(uv) * n).sum(axis=-1)
+        checker = np.where(cell % 2 == 0, 1.0, -1.0)
+        images.append(np.where(m[..., None], im * (1 + 0.4 * checker[..., None] * np.asarray(colour)), im))
+    return Problem(images, p.masks, p.normals, uv=p.uv, texture=p.texture, view_weight=p.view_weight)
+
+
+def test_colour_texture_sees_changes_of_colour_and_not_of_brightness():
+    # Patches of colour: neighbouring texels mostly share one. A checker of colour on them: every texel differs from
+    # its neighbours. The same checker in brightness alone (as shading would make it) leaves the colours as they
+    # were.
+    scene = sphere_scene(n_views=6, height=60, width=80, texture_size=32, seed=2)
+    patches = colour_texture(scene.problem, scene.sigma)
+    coloured = colour_texture(_patterned(scene, [1.0, -1.0, 0.0]), scene.sigma)
+    grey = colour_texture(_patterned(scene, [1.0, 1.0, 1.0]), scene.sigma)
+    assert patches < 0.01 * COLOUR_TEXTURE_REFERENCE
+    assert coloured > 5 * COLOUR_TEXTURE_REFERENCE
+    assert grey < 0.01 * COLOUR_TEXTURE_REFERENCE
+    grey_photos = sphere_scene(n_views=2, channels=1, texture_size=16, seed=2)
+    assert np.isnan(colour_texture(grey_photos.problem, grey_photos.sigma))
+
+
+def test_the_albedo_weight_falls_as_the_colour_texture_rises_within_its_range():
+    lo, hi = COLOUR_TEXTURE_RANGE
+    f = COLOUR_TEXTURE_REFERENCE * np.array([0.01, 0.5, 0.9, 1.0, 1.1, 2.0, 100.0])
+    lams = [adapted_albedo_lam(20.0, x) for x in f]
+    assert lams[3] == pytest.approx(20.0)
+    assert np.all(np.diff(lams) <= 0) and lams[1] > lams[2] > lams[3] > lams[4] > lams[5]
+    assert lams[0] == pytest.approx(20.0 * hi) and lams[-1] == pytest.approx(20.0 * lo)
+    assert adapted_albedo_lam(20.0, float("nan")) == 20.0
 
 
 @pytest.mark.parametrize("albedo_lam", [0.3, None])

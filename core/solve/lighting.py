@@ -43,11 +43,21 @@ from .sh import view_normal_equations
 from .solver import _shading
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
-#: fixtures (docs/measurements.md).
+#: fixtures (docs/measurements.md); with ``SolverParams.albedo_adapt``, the weight at COLOUR_TEXTURE_REFERENCE.
 ALBEDO_LAMBDA = 20.0
+#: With ``albedo_adapt`` the albedo stage's weight is ``albedo_lam * (f / COLOUR_TEXTURE_REFERENCE) **
+#: -COLOUR_TEXTURE_POWER`` within ``albedo_lam`` times COLOUR_TEXTURE_RANGE, f the photos' colour texture
+#: (:func:`colour_texture`): an albedo with fine changes of colour everywhere wants a weak TV that keeps them,
+#: flat patches a strong one that takes the shading left in them. Fitted by leave-one-scene-out over the 13
+#: fixtures, where the best weight spans 0.05 to 80 (docs/measurements.md).
+COLOUR_TEXTURE_REFERENCE = 0.044
+COLOUR_TEXTURE_POWER = 6.0
+COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
 
 __all__ = [
     "ALBEDO_LAMBDA",
+    "adapted_albedo_lam",
+    "colour_texture",
     "choose_lighting",
     "Coupling",
     "per_view_lighting_step",
@@ -640,6 +650,10 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
         light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
         builds = builds.result()
     first.views = None  # not needed: free them before the larger stage
+    texture = None
+    if params.albedo_adapt and params.domain == "texture":
+        texture = colour_texture(light_problem, first.sigma)
+        albedo_params = replace(albedo_params, lam=adapted_albedo_lam(params.albedo_lam, texture))
     light_pixels = sum(int(m.sum()) for m in light_problem.masks)
     light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
@@ -658,9 +672,46 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
         "pixels": light_pixels,
         "seconds": t1 - t0,
     }
-    second.info["albedo_lam"] = params.albedo_lam
+    second.info["albedo_lam"] = albedo_params.lam
+    second.info["colour_texture"] = texture
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second
+
+
+def colour_texture(problem, sigma: np.ndarray) -> float:
+    """How much fine colour texture the photos show: the median change of chromaticity between neighbouring
+    texels of the photos divided by their shading (:func:`division_start`, nearest texel), on the problem's
+    texture.
+
+    Chromaticity (``3 rho / sum(rho)``) hardly changes with the shading, so where the lighting left shading in
+    the division this measures the albedo's own changes of colour. NaN when no two neighbouring texels are seen.
+    """
+    if problem.channels != 3:  # grey photos: no colour to change
+        return float("nan")
+    size = problem.texture.size
+    d = texture_domain(problem, data_model="nearest")
+    img = np.full((size * size, 3), np.nan)
+    img[d.texel_index] = division_start(d, sigma)
+    img = img.reshape(size, size, 3)
+    total = img.sum(axis=-1)
+    seen = np.isfinite(total) & (total > 0)
+    chroma = 3 * img / np.maximum(total, 1e-4)[..., None]
+    steps = []
+    for axis in (0, 1):
+        step = np.diff(chroma, axis=axis)
+        both = np.logical_and(*(np.delete(seen, -1, axis), np.delete(seen, 0, axis)))
+        steps.append(np.sqrt((step[both] ** 2).sum(axis=-1)))
+    steps = np.concatenate(steps)
+    return float(np.median(steps)) if steps.size else float("nan")
+
+
+def adapted_albedo_lam(albedo_lam: float, texture: float) -> float:
+    """The albedo stage's TV weight for the photos' :func:`colour_texture` (``albedo_lam`` where it is NaN)."""
+    if not np.isfinite(texture):
+        return albedo_lam
+    lo, hi = COLOUR_TEXTURE_RANGE
+    factor = (max(texture, 1e-12) / COLOUR_TEXTURE_REFERENCE) ** -COLOUR_TEXTURE_POWER
+    return float(albedo_lam * np.clip(factor, lo, hi))
 
 
 def _ls_equations(d, rho, c):

@@ -131,6 +131,9 @@ class SolverParams:
         (:func:`core.solve.lighting.solve_two_stage`): the lighting is
         estimated with ``lam``, then the albedo solved again with that
         lighting fixed and this TV weight.
+    albedo_adapt : bool
+        Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show
+        (:func:`core.solve.lighting.adapted_albedo_lam`); False: as given.
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
@@ -181,6 +184,7 @@ class SolverParams:
     lighting: str = "per_view"
     coupling: float = 10.0
     albedo_lam: float | None = None
+    albedo_adapt: bool = True
     light_size: int = 128
     light_pixels: float = 128.0
     light_edges: float = 0.003

@@ -38,6 +38,7 @@ OPERATOR = {
     "out_dir": "out_dir",
     "overwrite": "overwrite",
     "albedo_lam": "albedo_lam",
+    "albedo_adapt": "albedo_adapt",
     "lighting": "lighting",
     "occlusion": "occlusion",
     "sun": "sun",
