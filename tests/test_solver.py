@@ -123,6 +123,18 @@ def test_the_data_term_in_chunks_is_the_data_term(fixed, monkeypatch):
     np.testing.assert_allclose(chunked.texture[chunked.seen], whole.texture[whole.seen], rtol=1e-4, atol=1e-5)
 
 
+def test_the_texture_domain_start_is_the_mean_of_the_observations_made_when_asked(textured):
+    # The albedo stage starts elsewhere: the weighted mean of each texel's observations is made on first use only.
+    d = texture_domain(textured.problem, data_model="splat")
+    assert d.rho_start is None
+    w = d.obs_weight.astype(np.float64)
+    for c in range(3):
+        num = np.bincount(d.obs_unknown, weights=w * d.values[d.obs_pixel, c], minlength=d.n_unknowns)
+        mean = num / np.bincount(d.obs_unknown, weights=w, minlength=d.n_unknowns)
+        np.testing.assert_allclose(d.rho0[:, c], mean, rtol=1e-6)
+    assert d.rho0 is d.rho_start
+
+
 def test_nearest_gives_each_pixel_one_observation_of_its_nearest_texel(textured):
     splat = texture_domain(textured.problem, data_model="splat")
     near = texture_domain(textured.problem, data_model="nearest")

@@ -87,7 +87,7 @@ class Discretization:
     B2T: sp.csr_matrix  # (n, E) float32, squares of B's entries, transposed
     n_tv: int  # rows [0, n_tv) are TV, the rest correspondences
     base: np.ndarray  # (E,) float32 base row weights
-    rho0: np.ndarray  # (n, C) float32 starting reflectance
+    rho_start: np.ndarray | None  # (n, C) float32 starting reflectance; None: made on first use (rho0)
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
 
@@ -107,6 +107,21 @@ class Discretization:
         self._nu_t = None
         self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
         self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
+
+    @property
+    def rho0(self) -> np.ndarray:
+        """(n, C) float32 starting reflectance: ``rho_start``, or the weighted mean of each unknown's observations
+        (made on first use: the albedo stage starts elsewhere and never asks)."""
+        with self._lock:
+            if self.rho_start is None:
+                w = self.obs_weight.astype(np.float64)
+                wsum = self.scatter(w)
+                means = [
+                    self.scatter(w * self.from_pixels(self.values[:, c]).astype(np.float64)) / wsum
+                    for c in range(self.values.shape[1])
+                ]
+                self.rho_start = np.stack(means, axis=1).astype(np.float32)
+        return self.rho_start
 
     @property
     def diagonal_data(self) -> bool:
@@ -289,7 +304,7 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         B2T=B2T,
         n_tv=n_tv,
         base=np.concatenate(base),
-        rho0=values.copy(),
+        rho_start=values.copy(),
     )
 
 
@@ -381,15 +396,10 @@ def texture_domain(
         B2T=B2T,
         n_tv=B.shape[0],
         base=base,
-        rho0=np.zeros((n, values.shape[1]), np.float32),
+        rho_start=None,
         texel_index=texels,
         obs_matrix=obs_matrix,
     )
-    # Start from the weighted mean of the observations that see each texel.
-    wsum = d.scatter(w_obs.astype(np.float64))
-    d.rho0 = np.stack(
-        [d.scatter(w_obs * values[pix_obs, ch].astype(np.float64)) / wsum for ch in range(values.shape[1])], axis=1
-    ).astype(np.float32)
     return d
 
 
