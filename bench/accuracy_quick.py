@@ -15,7 +15,7 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
 * ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
   the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
   default, with the sun's term at the direction the run found where it found one), then the albedo solved
-  again with that lighting held fixed and the albedo stage's TV weight and edges
+  again with that lighting held fixed and the albedo stage's TV weight (as the run adapted it) and edges
   (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
   ``ceiling_divide`` the photos divided by the fitted shading, without TV;
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
@@ -163,6 +163,8 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     row["ours_seconds"] = secs
     row["lam"] = ours.info.get("lam")
     row["lighting_variation"] = ours.info.get("lighting_variation")
+    row["albedo_lam"] = ours.info.get("albedo_lam")
+    row["colour_texture"] = ours.info.get("colour_texture")
     for key in ("lighting_mode", "stages"):
         if key in ours.info:
             row[key] = ours.info[key]
@@ -212,7 +214,8 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     from core.solve.lighting import ALBEDO_LAMBDA, division_start, fit_lighting, shading_error, solve_albedo
     from core.solve.solver import SolverParams
 
-    lam = sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA
+    # The albedo stage's weight as our run had it (adapted to the colour texture by default).
+    lam = ours.info.get("albedo_lam") or sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA
     occlusion = sets.get("occlusion", Options.occlusion)
     out = {"ceiling_lam": lam}
     for label, occ in (("", occlusion), ("_nu", False)):
@@ -240,6 +243,10 @@ def line(row):
         f"{row['fixture']:<22} project {_fmt(row['project'])} ({p:.3f})  ours {_fmt(row['ours'])} ({o:.3f})"
         f"  x{p / o:.2f}  {row['ours_seconds']:.0f}s  lam {row['lam']}"
     )
+    if row.get("albedo_lam") is not None:
+        s += f"  albedo lam {row['albedo_lam']:.3g}"
+        if row.get("colour_texture") is not None:
+            s += f" (colour texture {row['colour_texture']:.4f})"
     if "ceiling" in row:
         s += (
             f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"
