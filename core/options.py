@@ -218,7 +218,7 @@ SPEC = (
         "Albedo lambda from texture",
         "Scale the albedo lambda by how much fine colour texture the photos show: less smoothing where the "
         "albedo changes colour everywhere, more on flat patches (the albedo lambda is then the weight for an "
-        "average texture)",
+        "average texture; Texture method)",
         flag="--albedo-adapt",
     ),
     Option(
