@@ -348,6 +348,23 @@ def test_small_problems_run_their_channels_in_one_thread():
     assert channel_threads(SolverParams(threads=2), 3, 10 * SERIAL_OBSERVATIONS) == 2
 
 
+@pytest.mark.parametrize("same", [False, True])
+def test_pair_rows_are_the_difference_rows_as_assembled(same):
+    # The TV rows of the texture domain are built directly; they must be the general path's matrices, to the bit
+    # (with a row from an unknown to itself, which sums to nothing, it takes the general path).
+    from core.solve.discretization import _assemble, _difference_rows, _pair_rows
+
+    rng = np.random.default_rng(4)
+    a = rng.integers(0, 300, 1000)
+    b = (a + rng.integers(1, 300, 1000)) % 300
+    if same:
+        b[7] = a[7]
+    for made, assembled in zip(_pair_rows(a, b, 300), _assemble([_difference_rows(a, b)], 300)):
+        assert made.shape == assembled.shape and made.indices.dtype == assembled.indices.dtype
+        for part in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(made, part), getattr(assembled, part))
+
+
 def test_a_tv_edge_is_weighted_by_the_texel_side_it_crosses():
     from core.solve.discretization import _edge_lengths, _grid_edges
 

@@ -469,6 +469,28 @@ def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size):
     )
 
 
+def _pair_rows(a: np.ndarray, b: np.ndarray, n_unknowns: int):
+    """B with the rows ``x[a] - x[b]``, and its transposes, as :func:`_assemble` builds them from
+    :func:`_difference_rows`, made directly: each row's two columns in order, so scipy has nothing to sort."""
+    if np.any(a == b):  # such a row sums to nothing: the general path drops it
+        return _assemble([_difference_rows(a, b)], n_unknowns)
+    idx = np.int32 if max(2 * a.size, n_unknowns) < 2**31 else np.int64
+    first = a < b
+    cols = np.empty((a.size, 2), idx)
+    cols[:, 0] = np.where(first, a, b)
+    cols[:, 1] = np.where(first, b, a)
+    vals = np.empty((a.size, 2), np.float32)
+    vals[:, 0] = np.where(first, 1.0, -1.0)
+    vals[:, 1] = -vals[:, 0]
+    B = sp.csr_matrix(
+        (vals.ravel(), cols.ravel(), np.arange(0, 2 * a.size + 1, 2, dtype=idx)), shape=(a.size, n_unknowns)
+    )
+    B.has_canonical_format = True  # sorted, no duplicates: sum_duplicates would do nothing
+    BT = B.T.tocsr()
+    B2T = sp.csr_matrix((BT.data * BT.data, BT.indices, BT.indptr), shape=BT.shape, copy=False)
+    return B, BT, B2T
+
+
 def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: float):
     """The texture domain's TV rows: B, its transposes and the base weights.
 
@@ -491,7 +513,7 @@ def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: flo
     ea = np.concatenate([a, seam[:, 0]])
     eb = np.concatenate([b, seam[:, 1]])
     base = np.concatenate([perp / med, np.ones(seam.shape[0])]).astype(np.float32)
-    return (*_assemble([_difference_rows(lut[ea], lut[eb])], texels.size), base)
+    return (*_pair_rows(lut[ea], lut[eb], texels.size), base)
 
 
 def _interpolation_rows(obs_unknown, pix_obs, w_obs, n: int):
