@@ -681,7 +681,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
 def colour_texture(problem, sigma: np.ndarray) -> float:
     """How much fine colour texture the photos show: the median change of chromaticity between neighbouring
     texels of the photos divided by their shading (:func:`division_start`, nearest texel), on the problem's
-    texture.
+    texture (:func:`solve_two_stage` gives it the lighting stage's, at most 128², where the rule was fitted).
 
     Chromaticity (``3 rho / sum(rho)``) hardly changes with the shading, so where the lighting left shading in
     the division this measures the albedo's own changes of colour. NaN when no two neighbouring texels are seen.
@@ -699,7 +699,7 @@ def colour_texture(problem, sigma: np.ndarray) -> float:
     steps = []
     for axis in (0, 1):
         step = np.diff(chroma, axis=axis)
-        both = np.logical_and(*(np.delete(seen, -1, axis), np.delete(seen, 0, axis)))
+        both = np.delete(seen, -1, axis) & np.delete(seen, 0, axis)
         steps.append(np.sqrt((step[both] ** 2).sum(axis=-1)))
     steps = np.concatenate(steps)
     return float(np.median(steps)) if steps.size else float("nan")
