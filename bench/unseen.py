@@ -1,0 +1,116 @@
+"""Five scenes that no default was chosen on: new pairings of the fixtures' meshes, albedos and lights.
+
+Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
+cores), into ``build/bench/unseen/`` (not kept in the repository)::
+
+    .venv/bin/python bench/unseen.py [--out DIR] [--only NAME ...]
+    .venv/bin/python bench/accuracy_quick.py --fixtures build/bench/unseen --texture-size 0 [--no-ceiling]
+
+The 13 fixtures chose every default; these check a default on scenes it has not seen (docs/measurements.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "blend_fixtures"))
+
+import bpy  # noqa: E402, F401  (first: it makes bmesh and mathutils importable)
+import make_fixtures as fixtures  # noqa: E402
+
+_COMMON = dict(resolution=(256, 192), n_cameras=12, samples=32, texture_size=256, user_mesh="fine")
+
+#: Each is one of the fixtures' meshes with an albedo and a light that the fixtures do not pair with it.
+SCENES = {
+    "u_torus_coffee": dict(
+        _COMMON,
+        seed=9100,
+        film_transparent=True,
+        mesh="torus",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["courtyard"], strength=0.6, rotation_deg=[150.0]),
+        photo_format="EXR",
+    ),
+    "u_rock_patches": dict(
+        _COMMON,
+        seed=9200,
+        mesh="rock",
+        albedo="patches",
+        interpolation="Closest",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["city"], strength=0.7, rotation_deg=[0.0]),
+        photo_format="PNG",
+    ),
+    "u_bowl_noise": dict(
+        _COMMON,
+        seed=9300,
+        film_transparent=True,
+        mesh="bowl",
+        albedo="noise",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["forest"], strength=1.0, rotation_deg=[90.0]),
+        photo_format="EXR",
+    ),
+    "u_suzanne_regions_sun": dict(
+        _COMMON,
+        seed=9400,
+        albedo="regions",
+        interpolation="Closest",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=4.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=35.0,
+            sun_azimuth_deg=120.0,
+            hdri=["studio"],
+            strength=0.1,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+    ),
+    "u_stairs_chelsea": dict(
+        _COMMON,
+        resolution=(320, 240),
+        seed=9500,
+        mesh="stairs",
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=3.0,
+            sun_elevation_deg=60.0,
+            sun_azimuth_deg=-20.0,
+            hdri=["sunset"],
+            strength=0.4,
+            rotation_deg=[200.0],
+        ),
+        photo_format="JPEG",
+        jpeg_quality=90,
+    ),
+}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default=os.path.join(ROOT, "build", "bench", "unseen"))
+    p.add_argument("--only", nargs="*", choices=list(SCENES), help="scenes to make (default: all)")
+    args = p.parse_args(argv)
+    for name, spec in SCENES.items():
+        fixtures.SCENES[name] = spec
+        fixtures._DESCRIPTIONS[name] = f"unseen scene {name} (bench/unseen.py)"
+    for name in args.only or SCENES:
+        fixtures.generate(name, args.out)
+        print("made", os.path.join(args.out, name), flush=True)
+
+
+if __name__ == "__main__":
+    main()
