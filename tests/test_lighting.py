@@ -119,10 +119,12 @@ def test_known_lighting_recovers_the_albedo(exposed):
 def test_two_stages_report_both(exposed):
     _, problem, _ = exposed
     params = SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5, light_size=16)
-    r = solve(problem, params)
-    # The albedo stage's weight follows the colour texture the lighting stage's division shows.
+    said = []
+    r = solve(problem, params, progress=lambda f, m: said.append(m))
+    # The albedo stage's weight follows the colour texture the lighting stage's division shows, and says so.
     assert np.isfinite(r.info["colour_texture"])
     assert r.info["albedo_lam"] == adapted_albedo_lam(0.3, r.info["colour_texture"]) != 0.3
+    assert f"albedo: lambda {r.info['albedo_lam']:.3g} (from the photos' colour texture" in " | ".join(said)
     fixed = solve(problem, replace(params, albedo_adapt=False))
     assert fixed.info["albedo_lam"] == 0.3 and fixed.info["colour_texture"] is None
     assert r.info["lighting_stage"]["lighting"] == "shared"

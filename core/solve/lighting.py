@@ -658,6 +658,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
     albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
+    if texture is not None:
+        albedo_progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
     second = solve_albedo(
         problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views, builds=builds
     )
