@@ -239,6 +239,11 @@ def _assemble(groups, n_unknowns):
     )
     B.sum_duplicates()
     B.eliminate_zeros()
+    return _with_transposes(B)
+
+
+def _with_transposes(B):
+    """``B``, ``B^T`` and ``(B^2)^T`` as CSR matrices."""
     BT = B.T.tocsr()
     # Same pattern as BT: share its index arrays.
     B2T = sp.csr_matrix((BT.data * BT.data, BT.indices, BT.indptr), shape=BT.shape, copy=False)
@@ -486,9 +491,7 @@ def _pair_rows(a: np.ndarray, b: np.ndarray, n_unknowns: int):
         (vals.ravel(), cols.ravel(), np.arange(0, 2 * a.size + 1, 2, dtype=idx)), shape=(a.size, n_unknowns)
     )
     B.has_canonical_format = True  # sorted, no duplicates: sum_duplicates would do nothing
-    BT = B.T.tocsr()
-    B2T = sp.csr_matrix((BT.data * BT.data, BT.indices, BT.indptr), shape=BT.shape, copy=False)
-    return B, BT, B2T
+    return _with_transposes(B)
 
 
 def _texel_rows(layout, texels: np.ndarray, lut: np.ndarray, max_edge_ratio: float):

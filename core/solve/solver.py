@@ -333,15 +333,21 @@ def _weighted_huber(x, w, delta):
     return total
 
 
+def _gathered_chunks(d, rho, chunk):
+    """``(lo, hi, rho at observations lo:hi)`` over all observations, :data:`_CHUNK` at a time, each gathered into
+    the buffer ``chunk`` (a diagonal data term: one unknown per observation)."""
+    for lo in range(0, d.obs_unknown.size, _CHUNK):
+        hi = min(lo + _CHUNK, d.obs_unknown.size)
+        yield lo, hi, np.take(rho, d.obs_unknown[lo:hi], out=chunk[: hi - lo], mode="clip")  # "clip": unbuffered
+
+
 def _channel_energy(d, rho, obs_shade, obs_values, s, delta, rows=None, chunk=None):
     """One channel's energy; ``rows``, if given, is a buffer for ``B @ rho`` in rho's dtype, ``chunk`` one of
     :data:`_CHUNK` for the residuals (with a diagonal data term)."""
     if d.diagonal_data:  # the residual chunk by chunk: no array over all observations
         chunk = np.empty(min(_CHUNK, d.obs_unknown.size), rho.dtype) if chunk is None else chunk
         data = 0.0
-        for lo in range(0, d.obs_unknown.size, _CHUNK):
-            hi = min(lo + _CHUNK, d.obs_unknown.size)
-            r = np.take(rho, d.obs_unknown[lo:hi], out=chunk[: hi - lo], mode="clip")  # "clip": unbuffered
+        for lo, hi, r in _gathered_chunks(d, rho, chunk):
             r *= obs_shade[lo:hi]
             r -= obs_values[lo:hi]
             data += _weighted_huber(r, d.obs_weight[lo:hi], delta)
@@ -434,10 +440,8 @@ class _Channel:
         chunk in the kept buffers."""
         d, a = self.d, self.obs_shade
         rhs, diag = np.zeros(d.n_unknowns, self.ft), np.zeros(d.n_unknowns, self.ft)
-        for lo in range(0, d.obs_unknown.size, _CHUNK):
-            hi = min(lo + _CHUNK, d.obs_unknown.size)
+        for lo, hi, w in _gathered_chunks(d, self.rho, self._chunk):
             idx = d.obs_unknown[lo:hi]
-            w = np.take(self.rho, idx, out=self._chunk[: hi - lo], mode="clip")
             self.data_weights(w, lo, hi, out=w)
             w *= a[lo:hi]  # w a
             scatter_add(idx, np.multiply(w, self.obs_values[lo:hi], out=self._chunk2[: hi - lo]), rhs)
