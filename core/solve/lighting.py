@@ -32,10 +32,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import Cancelled
 from ..memory import release_free_memory
 from ..parallel import joined, start
-from ..progress import sub_progress
+from ..progress import check_cancel, sub_progress
 from .discretization import image_domain, texture_domain
 from .problem import SUN_COLUMNS
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
@@ -472,7 +471,7 @@ def solve_albedo(
     core.solve.solver.Result
         With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
     """
-    from .solver import Result, _Channel, _outputs, channel_threads, release_after_iteration
+    from .solver import Result, _Channel, _iterate, _outputs, _rescaled, channel_threads
 
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
@@ -530,6 +529,10 @@ def solve_albedo(
         ch.e = ch.energy()
         return ch
 
+    def report(i, e):
+        if progress is not None:
+            progress(i / params.max_iter, f"iteration {i}, energy {e:.6g}")
+
     it = 0
     with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
         channels = list(pool.map(channel, range(problem.channels)))
@@ -540,28 +543,10 @@ def solve_albedo(
                 for ch in channels:
                     ch.delta = delta
                     ch.e = ch.energy()
-            history = [sum(ch.e for ch in channels)]
             least = params.min_iter if delta == params.delta else min(params.min_iter, WARM_MIN_ITER)
-            start = it
-            while it < params.max_iter:
-                if cancel is not None and cancel():
-                    raise Cancelled("cancelled by the user")
-                history.append(sum(pool.map(lambda ch: ch.step(), channels)))
-                release_after_iteration(d)
-                it += 1
-                if progress is not None:
-                    progress(it / params.max_iter, f"iteration {it}, energy {history[-1]:.6g}")
-                prev, cur = history[-2], history[-1]
-                if it - start >= least and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
-                    break
-    release_free_memory()
-    rho = np.stack([ch.rho for ch in channels], axis=1)
-    sigma = sigma.copy()
-    for c, ch in enumerate(channels):
-        kappa = float(np.dot(d.obs_weight, d.from_pixels(ch.shade)) / d.obs_weight.sum())
-        if np.isfinite(kappa) and kappa > 0:
-            rho[:, c] *= kappa
-            sigma[:, c] /= kappa
+            history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), t0, it, least, pool)
+            it += len(history) - 1
+    rho, sigma = _rescaled(d, channels)
     views, texture, seen = _outputs(problem, d, rho, views=views and not merged)
     info = {
         "build_seconds": t_build,

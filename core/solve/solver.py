@@ -749,27 +749,33 @@ def _warm_start(problem, d: Discretization, below: Result):
     return np.where(np.isfinite(up), up, d.rho0), below.sigma
 
 
-def _iterate(channels, params: SolverParams, report, check_cancel, t0: float):
+def _iterate(channels, params: SolverParams, report, check_cancel, t0: float, done: int = 0, least=None, pool=None):
     """The outer MM loop over all channels; returns the energy history and its times since ``t0``.
 
-    ``report(iteration, energy)`` is called after each iteration. The
-    stopping test on the relative energy change is skipped before
-    ``min_iter``, so that a warm start cannot stop the loop at once.
+    Iterations are numbered on from ``done`` up to ``params.max_iter``, and
+    ``report(iteration, energy)`` is called after each. The stopping test on
+    the relative energy change is skipped before ``least`` iterations of this
+    call (default ``params.min_iter``), so that a warm start cannot stop the
+    loop at once. ``pool``: the channels' threads, if the caller has them.
     """
-    pool = ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), channels[0].d.obs_pixel.size))
+    own = pool is None
+    if own:
+        pool = ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), channels[0].d.obs_pixel.size))
+    least = params.min_iter if least is None else least
     history, elapsed = [sum(ch.e for ch in channels)], [time.perf_counter() - t0]
     try:
-        for it in range(1, params.max_iter + 1):
+        for it in range(done + 1, params.max_iter + 1):
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
             release_after_iteration(channels[0].d)
             elapsed.append(time.perf_counter() - t0)
             report(it, history[-1])
             prev, cur = history[-2], history[-1]
-            if it >= params.min_iter and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
+            if it - done >= least and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
                 break
     finally:
-        pool.shutdown(wait=True)
+        if own:
+            pool.shutdown(wait=True)
         release_free_memory()
     return history, elapsed
 
