@@ -16,7 +16,7 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
   the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
   default, with the sun's term at the direction the run found where it found one), then the albedo solved
   again with that lighting held fixed and the albedo stage's TV weight (as the run adapted it) and edges
-  (:func:`core.solve.lighting.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
+  (:func:`core.solve.stages.solve_albedo`); ``ceiling_nu`` the same with the paper's ``nu(n)``, and
   ``ceiling_divide`` the photos divided by the fitted shading, without TV;
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
   observations after one scale per channel (the albedo's scale is free).
@@ -211,8 +211,9 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
     from core.solve.discretization import texture_domain
-    from core.solve.lighting import ALBEDO_LAMBDA, division_start, fit_lighting, shading_error, solve_albedo
+    from core.solve.lighting import fit_lighting, shading_error
     from core.solve.solver import SolverParams
+    from core.solve.stages import ALBEDO_LAMBDA, division_start, solve_albedo
 
     # The albedo stage's weight as our run had it (adapted to the colour texture by default).
     lam = ours.info.get("albedo_lam") or sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA

@@ -51,7 +51,8 @@ from core.solve.discretization import image_domain  # noqa: E402
 from core.solve.huber import mm_weight  # noqa: E402
 from core.solve.problem import Problem  # noqa: E402
 from core.solve.sh import DIFFUSE, sh_basis  # noqa: E402
-from core.solve.solver import SolverParams, energy, solve  # noqa: E402
+from core.solve.solver import SolverParams, energy  # noqa: E402
+from core.solve.stages import solve  # noqa: E402
 
 #: CG iterations per rho-step of the reference (the paper does not say; our Jacobi default).
 REFERENCE_CG_ITER = 30

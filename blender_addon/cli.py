@@ -49,7 +49,7 @@ CLI_FIELDS = tuple(name for name in RUN_FIELDS if OPTIONS[name].flag)
 
 
 def build_parser(with_blend: bool) -> argparse.ArgumentParser:
-    from .core.errors import DEBUG_HELP
+    from .core.failures import DEBUG_HELP
     from .core.options import add_arguments
 
     p = argparse.ArgumentParser(
@@ -87,7 +87,8 @@ def main(argv=None, blend_loaded: bool = False) -> int:
 
     import bpy
 
-    from .core.errors import DelightError, report_failure
+    from .core.errors import DelightError
+    from .core.failures import report_failure
     from .core.progress import ProgressPrinter
     from .pipeline import run
 

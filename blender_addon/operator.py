@@ -22,7 +22,8 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import pipeline
-from .core.errors import Cancelled, DelightError, failure_message, is_expected
+from .core.errors import Cancelled, DelightError, is_expected
+from .core.failures import failure_message
 from .core.options import OPTIONS
 from .core.progress import ProgressPrinter, ProgressState
 

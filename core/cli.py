@@ -7,7 +7,7 @@
 
 Run it from the repository root (or with the root on ``PYTHONPATH``).
 ``solve`` loads a problem bundle (:mod:`core.io.bundle`), runs
-:func:`core.solve.solver.solve` with progress on stderr, and writes into DIR:
+:func:`core.solve.stages.solve` with progress on stderr, and writes into DIR:
 
 ``views/<name>.exr``
     Per-view reflectance, RGBA: RGB the reflectance (grey images are
@@ -45,7 +45,8 @@ import time
 
 import numpy as np
 
-from .errors import DEBUG_HELP, DelightError, report_failure
+from .errors import DelightError
+from .failures import DEBUG_HELP, report_failure
 from .io.bundle import load_bundle
 from .io.outputs import REPORT, channel_names, lighting_files, lighting_outputs, prepare_outputs, rgba, view_files
 from .io.outputs import write_outputs as _write_all
@@ -53,7 +54,8 @@ from .options import SOLVER_FIELDS, add_arguments, check
 from .progress import ProgressPrinter
 from .solve.lambda_choice import auto_lambda, describe_lambda
 from .solve.sh import SH_BASIS_NAMES
-from .solve.solver import SolverParams, solve
+from .solve.solver import SolverParams
+from .solve.stages import solve
 
 __all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
 

@@ -1,11 +1,8 @@
-"""The errors a run reports to the user: bad input, and a cancel; and the one line that reports any failure."""
+"""The errors a run reports to the user: bad input, and a cancel (:mod:`core.failures` words any failure)."""
 
 from __future__ import annotations
 
-import errno
-import traceback
-
-__all__ = ["DelightError", "Cancelled", "REPORTED", "DEBUG_HELP", "is_expected", "failure_message", "report_failure"]
+__all__ = ["DelightError", "Cancelled", "REPORTED", "is_expected"]
 
 
 class DelightError(Exception):
@@ -31,9 +28,6 @@ class Cancelled(Exception):
 #: from the core's own checks of its arrays) and a cancel.
 REPORTED = (DelightError, ValueError, Cancelled)
 
-#: Help of the command lines' ``--debug``.
-DEBUG_HELP = "on a failure, print the traceback too (for a bug report)"
-
 
 def is_expected(exc: BaseException) -> bool:
     """True for the failures a user can act on (bad input, a cancel, out of memory, a file system error).
@@ -41,69 +35,3 @@ def is_expected(exc: BaseException) -> bool:
     The others are bugs: their traceback is worth keeping (on the console, or with ``--debug``).
     """
     return isinstance(exc, (*REPORTED, KeyboardInterrupt, MemoryError, OSError))
-
-
-def _setting(name: str, front: str) -> str:
-    """A setting as a message names it: "the working resolution (--working-res)", or its label in the panel."""
-    from .options import OPTIONS
-
-    o = OPTIONS[name]
-    if front == "cli":
-        return f"the {o.label.split(' (')[0].lower()} ({o.flag})"
-    return f"the {o.label}"
-
-
-def _os_error(exc: OSError) -> str:
-    reasons = {
-        errno.EACCES: "permission denied",
-        errno.EPERM: "permission denied",
-        errno.ENOSPC: "the disk is full",
-        errno.EROFS: "the file system is read-only",
-        errno.ENOENT: "no such file or folder",
-    }
-    if hasattr(errno, "EDQUOT"):
-        reasons[errno.EDQUOT] = "the disk quota is exceeded"
-    why = reasons.get(exc.errno) or exc.strerror or str(exc) or type(exc).__name__
-    return f"{exc.filename}: {why}" if exc.filename is not None else why
-
-
-def failure_message(exc: BaseException, front: str = "cli") -> str:
-    """The one line that tells the user why a run failed (without the ``error:`` prefix).
-
-    Parameters
-    ----------
-    exc : BaseException
-    front : {"cli", "panel", "core"}
-        Who reports it: the add-on's command line names settings by their flags and the panel by their labels
-        ("core", ``python -m core``, solves a bundle made before); an unexpected error points to ``--debug``,
-        or in the panel to the system console, for its traceback.
-    """
-    if isinstance(exc, (Cancelled, KeyboardInterrupt)):
-        return str(exc) if getattr(exc, "written", None) else "interrupted; nothing was written"
-    if isinstance(exc, MemoryError):
-        if front == "core":
-            return "out of memory: solve a smaller bundle (fewer or smaller photos, a smaller texture)"
-        return f"out of memory: lower {_setting('working_res_mp', front)} or {_setting('texture_size', front)}"
-    if isinstance(exc, (DelightError, ValueError)):
-        return str(exc)
-    if isinstance(exc, OSError):
-        return _os_error(exc)
-    where = "the traceback is in the system console" if front == "panel" else "run with --debug for the traceback"
-    text = str(exc).strip().splitlines()
-    return f"unexpected {type(exc).__name__}{': ' + text[0] if text else ''} ({where})"
-
-
-def report_failure(exc: BaseException, stream, debug: bool = False, front: str = "cli") -> int:
-    """Print the one line for a failed command-line run on ``stream`` and return the exit status.
-
-    A cancel (:class:`Cancelled`, Ctrl+C) gives ``delight: interrupted; nothing was written`` (or what was
-    written) and 130; anything else ``error: <message>`` (:func:`failure_message` for ``front``) and 1. With
-    ``debug`` the traceback of a failure comes first; without it no traceback is printed.
-    """
-    if isinstance(exc, (Cancelled, KeyboardInterrupt)):
-        print(f"delight: {failure_message(exc)}", file=stream, flush=True)
-        return 130
-    if debug:
-        traceback.print_exception(type(exc), exc, exc.__traceback__, file=stream)
-    print(f"error: {failure_message(exc, front)}", file=stream, flush=True)
-    return 1

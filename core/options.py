@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, make_dataclass
 
 from .errors import DelightError
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
-from .solve.lighting import ALBEDO_LAMBDA
 from .solve.solver import SolverParams
+from .solve.stages import ALBEDO_LAMBDA
 
 __all__ = [
     "Option",

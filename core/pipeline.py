@@ -18,7 +18,8 @@ from .parallel import joined, start, thread_map
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import SceneInputs
 from .solve.problem import Problem, row_blocks
-from .solve.solver import SolverParams, solve
+from .solve.solver import SolverParams
+from .solve.stages import solve
 from .texture import fill_unseen, fuse_views, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
@@ -112,8 +113,8 @@ def _lighting_stage(problem, params, progress, cancel):
     (measured on the fixtures) and saves the albedo stage's time and memory. The problem's masks are thinned
     to :data:`LIGHTING_PIXELS` (:func:`_thinned`) by the caller.
     """
-    from .solve.lighting import lighting_stage
     from .solve.pyramid import upsample_bilinear
+    from .solve.stages import lighting_stage
 
     light, result = lighting_stage(problem, params, progress, cancel)
     if light is not problem:

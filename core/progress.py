@@ -150,7 +150,7 @@ def format_time_left(seconds: float | None) -> str:
 
 
 # The solver's messages (core.solve.solver): "iteration 12, energy 3.2", each coarse level prefixing its own
-# "coarse level 256: ", and each stage of a two-stage solve (core.solve.lighting) "lighting: " or "albedo: ".
+# "coarse level 256: ", and each stage of a two-stage solve (core.solve.stages) "lighting: " or "albedo: ".
 _ENERGY = re.compile(r"(iteration \d+), energy \S+")
 _COARSE = re.compile(r"(?:coarse level \S+: )+")
 _MAIN_ITERATION = re.compile(r"^(solve: (?:lighting: |albedo: )?)(iteration \d+)\b")

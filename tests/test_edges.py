@@ -5,8 +5,9 @@ from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
 from core.solve.discretization import texture_domain
 from core.solve.edges import edge_weights, with_edges_freed
-from core.solve.lighting import shading_error, solve_albedo
-from core.solve.solver import SolverParams, solve
+from core.solve.lighting import shading_error
+from core.solve.solver import SolverParams
+from core.solve.stages import solve, solve_albedo
 
 
 def test_edge_weights_free_the_changes_of_colour_and_hold_those_of_brightness():

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 import core.cli
-from core.errors import Cancelled, DelightError, failure_message, is_expected, report_failure
+from core.errors import Cancelled, DelightError, is_expected
 from core.evaluate.synthetic import sphere_scene
+from core.failures import failure_message, report_failure
 from core.io.bundle import save_bundle
 
 

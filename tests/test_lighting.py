@@ -5,25 +5,23 @@ import pytest
 
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
-from core.solve import lighting
+from core.solve import lighting, stages
 from core.solve.discretization import texture_domain
-from core.solve.lighting import (
+from core.solve.lighting import fit_lighting, shading_error, shared_lighting_step, split_gains
+from core.solve.problem import Problem
+from core.solve.solver import SolverParams
+from core.solve.stages import (
     COLOUR_TEXTURE_RANGE,
     COLOUR_TEXTURE_REFERENCE,
     NEAREST_MIN_PIXELS_PER_TEXEL,
     adapted_albedo_lam,
     colour_texture,
-    fit_lighting,
     lighting_data_model,
     lighting_stage,
     pixels_per_texel,
-    shading_error,
-    shared_lighting_step,
+    solve,
     solve_albedo,
-    split_gains,
 )
-from core.solve.problem import Problem
-from core.solve.solver import SolverParams, solve
 
 
 @pytest.fixture(scope="module")
@@ -227,7 +225,7 @@ def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixel
     # noise, and the strong TV weight of the albedo stage smooths it slowly from there.
     scene = sphere_scene(6, 60, 80, texture_size=128, n_cells=8, seed=3, noise=0.08)
     problem = scene.problem
-    assert pixels_per_texel(problem) < lighting.COARSE_START_PIXELS
+    assert pixels_per_texel(problem) < stages.COARSE_START_PIXELS
     band = np.zeros((128, 128), bool)
     band[4:96] = True  # the latitudes the cameras see well
 
@@ -237,17 +235,17 @@ def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixel
     params = SolverParams(lam=20.0, max_texels_per_pixel=0.0)
     half = solve_albedo(problem, scene.sigma, params)
     assert half.info["coarse_start"]["size"] == 64
-    monkeypatch.setattr(lighting, "COARSE_START_PIXELS", 0.0)
+    monkeypatch.setattr(stages, "COARSE_START_PIXELS", 0.0)
     direct = solve_albedo(problem, scene.sigma, params)
     assert direct.info["coarse_start"] is None
     # Measured 0.044 and 0.066.
     assert error(half) < 0.8 * error(direct), (error(half), error(direct))
     # From that start it runs REFINE_ITER iterations: here, where the stopping rule would take 50, at a cost
     # (measured 0.0439 against 0.0398).
-    assert half.iterations == lighting.REFINE_ITER
-    monkeypatch.setattr(lighting, "COARSE_START_PIXELS", 3.0)
+    assert half.iterations == stages.REFINE_ITER
+    monkeypatch.setattr(stages, "COARSE_START_PIXELS", 3.0)
     converged = solve_albedo(problem, scene.sigma, params, refine_iter=None)
-    assert converged.iterations > 10 * lighting.REFINE_ITER
+    assert converged.iterations > 10 * stages.REFINE_ITER
     assert error(half) < 1.12 * error(converged), (error(half), error(converged))
 
 
@@ -256,7 +254,7 @@ def test_the_starts_built_ahead_are_the_ones_the_albedo_stage_solves():
     scene = sphere_scene(6, 60, 80, texture_size=128, n_cells=8, seed=3, noise=0.08)
     problem = scene.problem
     params = SolverParams(lam=20.0, max_texels_per_pixel=0.0)
-    builds = lighting._start_builds(problem, params)
+    builds = stages._start_builds(problem, params)
     assert sorted(builds) == [64]  # 128 starts from 64, which has pixels enough to start from itself
     ahead = solve_albedo(problem, scene.sigma, params, builds=builds)
     assert builds == {}  # taken as used, so that the larger levels do not hold it
@@ -291,8 +289,8 @@ def test_a_sun_column_is_never_given_a_negative_sun(exposed, lighting):
 
 
 def test_the_lighting_stage_thins_dense_photos_and_the_albedo_stays_as_good():
-    from core.solve.lighting import thinned_for_lighting
     from core.solve.pyramid import MIN_PIXELS, with_texture_size
+    from core.solve.stages import thinned_for_lighting
 
     scene = sphere_scene(varying_light=False, n_views=6, height=180, width=240, texture_size=32, seed=5, textured=True)
     problem = scene.problem
@@ -421,10 +419,10 @@ def test_a_warm_run_with_a_smoother_huber_ends_nearer_the_minimum(noise):
     # under the same tolerance and cap they stop at a lower energy of their own problem (measured 794.1 against
     # 796.1 at noise 0.08, 300.4 against 301.5 at 0.02), so the texture refined from them starts nearer too.
     scene = sphere_scene(6, 60, 80, texture_size=64, n_cells=8, seed=3, noise=noise)
-    params = SolverParams(lam=20.0, max_texels_per_pixel=0.0, max_iter=30, tol=lighting.COARSE_START_TOL)
+    params = SolverParams(lam=20.0, max_texels_per_pixel=0.0, max_iter=30, tol=stages.COARSE_START_TOL)
     plain = solve_albedo(scene.problem, scene.sigma, params, refine_iter=None)
     warm = solve_albedo(
-        scene.problem, scene.sigma, params, refine_iter=None, warm_delta=lighting.COARSE_START_DELTA_FACTOR * 1e-3
+        scene.problem, scene.sigma, params, refine_iter=None, warm_delta=stages.COARSE_START_DELTA_FACTOR * 1e-3
     )
     assert params.delta == 1e-3 and warm.iterations <= params.max_iter
     assert np.all(np.diff(warm.energy) <= 1e-9 * warm.energy[0])  # the energies of the second run, at delta

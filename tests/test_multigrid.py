@@ -12,7 +12,8 @@ from core.solve.huber import mm_weight
 from core.solve.multigrid import Hierarchy, block_grid, surface_grid
 from core.solve.problem import Problem
 from core.solve.sh import DIFFUSE
-from core.solve.solver import SolverParams, solve
+from core.solve.solver import SolverParams
+from core.solve.stages import solve
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,8 @@ from blender_addon.cli import build_parser as addon_parser
 from core import pipeline
 from core.cli import build_parser as core_parser
 from core.cli import main as core_main
-from core.errors import Cancelled, DelightError, report_failure
+from core.errors import Cancelled, DelightError
+from core.failures import report_failure
 from core.options import OPTIONS, RUN_FIELDS, SOLVER_FIELDS, SPEC, Options, check, requirement
 from core.progress import STAGES, ProgressPrinter, check_cancel, stage_progress
 from core.solve.solver import SolverParams

@@ -10,7 +10,8 @@ from core.geometry.correspondences import find_correspondences
 from core.solve import pyramid
 from core.solve.discretization import texture_domain
 from core.solve.problem import Correspondences, Problem
-from core.solve.solver import SolverParams, energy, solve
+from core.solve.solver import SolverParams, energy
+from core.solve.stages import solve
 
 
 def _view_rmse(result, scene):

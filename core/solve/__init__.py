@@ -18,8 +18,9 @@ from .multigrid import Hierarchy, block_grid, surface_grid
 from .problem import Correspondences, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import DIFFUSE, SH_BASIS_NAMES, sh_basis, weighted_gram
-from .solver import Result, SolverParams, energy, solve
+from .solver import Result, SolverParams, energy, solve_joint
 from .spmv import matvec_into
+from .stages import solve
 
 __all__ = [
     "Correspondences",
@@ -56,5 +57,6 @@ __all__ = [
     "SolverParams",
     "Result",
     "solve",
+    "solve_joint",
     "energy",
 ]

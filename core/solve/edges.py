@@ -6,7 +6,7 @@ regions (a lower energy, a worse lighting). Run again with each TV row weighted
 down where the first run found a change of colour (:func:`reweighted_lighting`),
 the lighting is left to explain the variation inside the regions.
 
-The albedo stage (:func:`core.solve.lighting.solve_albedo`) weights its rows
+The albedo stage (:func:`core.solve.stages.solve_albedo`) weights its rows
 the same way, from its start: a strong TV weight then smooths the shading left
 inside regions of one colour (a shadow changes brightness, not colour) while
 the changes of colour keep their height.
@@ -14,7 +14,13 @@ the changes of colour keep their height.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
+
+from ..progress import check_cancel
+from .discretization import texture_domain
+from .solver import Result, _Channel, _iterate, _outputs, _rescaled
 
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
@@ -67,15 +73,9 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     Returns
     -------
     core.solve.solver.Result
-        As :func:`core.solve.solver.solve` gives it, with ``info["edges"]``
+        As :func:`core.solve.solver.solve_joint` gives it, with ``info["edges"]``
         (iterations and last energy of this run).
     """
-    import time
-
-    from ..progress import check_cancel
-    from .discretization import texture_domain
-    from .solver import Result, _Channel, _iterate, _outputs, _rescaled
-
     d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
     C = problem.channels
     rho = first.texture.reshape(-1, C)[d.texel_index]

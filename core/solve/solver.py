@@ -54,13 +54,14 @@ from ..progress import check_cancel
 from .cg import pcg
 from .discretization import Discretization, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
+from .lighting import Coupling, per_view_lighting_step, shading, shared_lighting_step
 from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
 from .sh import diffuse, view_normal_equations
 from .spmv import matvec_into, scatter_add
 
-__all__ = ["SolverParams", "Result", "solve", "energy"]
+__all__ = ["SolverParams", "Result", "solve_joint", "energy"]
 
 
 @dataclass
@@ -128,12 +129,12 @@ class SolverParams:
         term (:class:`core.solve.lighting.Coupling`).
     albedo_lam : float or None
         None: one stage, as the paper. A number: two stages
-        (:func:`core.solve.lighting.solve_two_stage`): the lighting is
+        (:func:`core.solve.stages.solve_two_stage`): the lighting is
         estimated with ``lam``, then the albedo solved again with that
         lighting fixed and this TV weight.
     albedo_adapt : bool
         Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show
-        (:func:`core.solve.lighting.adapted_albedo_lam`); False: as given.
+        (:func:`core.solve.stages.adapted_albedo_lam`); False: as given.
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).
@@ -155,7 +156,7 @@ class SolverParams:
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
     albedo_edges : float
-        Texture domain, lighting fixed (:func:`core.solve.lighting.solve_albedo`,
+        Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
         :func:`core.solve.edges.edge_weights` of the albedo's start (the photos
         divided by the shading) with this edge scale, so TV smooths what is left
@@ -309,15 +310,6 @@ def channel_threads(params: SolverParams, channels: int, observations: int | Non
     return max(1, min(resolve_threads(params.threads), channels))
 
 
-def _shading(d: Discretization, sigma: np.ndarray, dtype=np.float32) -> np.ndarray:
-    """``sigma_v . nu_p`` for every pixel p of every view v; sigma is (m, 9)."""
-    out = np.empty(d.nu.shape[0], dtype=dtype)
-    for v in range(d.n_views):
-        a, b = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        out[a:b] = np.dot(d.nu[a:b], sigma[v].astype(dtype))  # np.dot releases the GIL, @ does not
-    return out
-
-
 # Elementwise work over the difference rows goes in chunks of this many, so its temporaries stay small
 # and are reused rather than faulted in afresh (see core.solve.spmv).
 _CHUNK = 1 << 20
@@ -366,7 +358,7 @@ def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu
     """Energy of eq. (var) summed over channels; rho is (n, C), sigma (m, C, 9)."""
     s = d.row_scale(lam, mu).astype(np.float64)
     return sum(
-        _channel_energy(d, rho[:, c], d.from_pixels(_shading(d, sigma[:, c])), d.from_pixels(d.values[:, c]), s, delta)
+        _channel_energy(d, rho[:, c], d.from_pixels(shading(d, sigma[:, c])), d.from_pixels(d.values[:, c]), s, delta)
         for c in range(rho.shape[1])
     )
 
@@ -389,8 +381,6 @@ class _Channel:
         self.lighting = params.lighting
         self.coupling = None
         if params.lighting == "coupled":
-            from .lighting import Coupling
-
             self.coupling = Coupling(d, c, params.coupling, self.sigma)
         self.s_ft = d.row_weights(params.lam, params.mu, self.ft)
         # Kept buffers over the difference rows: B x, and the rho-step's weights (see core.solve.spmv).
@@ -404,7 +394,7 @@ class _Channel:
             self._chunk, self._chunk2 = np.empty(k, self.ft), np.empty(k, self.ft)
         # Gathered once per change: the observations' values and shading.
         self.obs_values = d.from_pixels(self.values).astype(self.ft)
-        self._set_sigma(self.sigma, _shading(d, self.sigma, self.ft))
+        self._set_sigma(self.sigma, shading(d, self.sigma, self.ft))
         self.e = self.energy()
 
     def _set_sigma(self, sigma, shade, obs_shade=None):
@@ -529,19 +519,15 @@ class _Channel:
         Ms, bs = self.normal_equations()
         world = None
         if self.lighting == "shared":
-            from .lighting import shared_lighting_step
-
             sigma = shared_lighting_step(Ms, bs, self.sigma)
         elif self.lighting == "coupled":
             sigma, world = self.coupling.step(Ms, bs, self.sigma)
         else:
-            from .lighting import per_view_lighting_step
-
             sigma = per_view_lighting_step(Ms, bs, self.sigma)
         if sigma.shape[1] == SUN_COLUMNS:  # the last column is a sun term (Problem.transfer): no negative sun
             sigma = np.array(sigma)
             sigma[:, -1] = np.maximum(sigma[:, -1], 0.0)
-        shade = _shading(d, sigma, self.ft)
+        shade = shading(d, sigma, self.ft)
         obs_shade = d.from_pixels(shade)
         e = self.energy(obs_shade=obs_shade, sigma=sigma, world=world)
         if e <= self.e:
@@ -564,11 +550,12 @@ class _Channel:
         return self.e
 
 
-def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
-    """Estimate reflectance and lighting with alternating MM.
+def solve_joint(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
+    """Estimate reflectance and lighting together with alternating MM: the paper's algorithm.
 
     The levels of :func:`_ladder` are solved coarse to fine, each started
-    from the one below.
+    from the one below. ``params.albedo_lam`` is not used here: the entry
+    point :func:`core.solve.stages.solve` runs two stages when it is set.
 
     Parameters
     ----------
@@ -589,10 +576,6 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params = params or SolverParams()
     params.check()
     params = params.resolved()
-    if params.albedo_lam is not None:
-        from .lighting import solve_two_stage
-
-        return solve_two_stage(problem, params, progress, cancel, views)
     t0 = time.perf_counter()
 
     def poll():
@@ -851,7 +834,7 @@ def _gauss_newton_step(ch: _Channel) -> bool:
     drho, dsig = step[:n], (step[n:] * free).reshape(d.n_views, 9)
     for t in (1.0, 0.5, 0.25, 0.125):
         sigma = ch.sigma + t * dsig
-        shade = _shading(d, sigma, ch.ft)
+        shade = shading(d, sigma, ch.ft)
         new = (rho + t * drho).astype(ch.ft)
         e = ch.energy(rho=new, obs_shade=d.from_pixels(shade))
         if e < ch.e:

@@ -13,7 +13,8 @@ from conftest import build_scene  # noqa: E402
 from scene_state import files_under, scene_state  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.errors import Cancelled, DelightError, report_failure  # noqa: E402
+from blender_addon.core.errors import Cancelled, DelightError  # noqa: E402
+from blender_addon.core.failures import report_failure  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

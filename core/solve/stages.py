@@ -1,0 +1,510 @@
+"""The solve: the paper's joint estimate in one stage, or the lighting and then the albedo in two.
+
+:func:`solve` is the entry point. Without ``SolverParams.albedo_lam`` it is the paper's alternating MM of the
+albedo and the lighting together (:func:`core.solve.solver.solve_joint`). With it (the add-on's default), two
+stages (:func:`solve_two_stage`):
+
+1. :func:`lighting_stage`: the joint MM with a strong TV weight, on a texture of at most 128² (the lighting has
+   a few coefficients per view; it needs no fine texels). The strong weight keeps shading out of the albedo,
+   and flattens its detail.
+2. :func:`solve_albedo`: the albedo again, under that lighting held fixed, with a weak TV weight chosen from
+   the photos' colour texture (:func:`colour_texture`): a convex problem in rho alone, started from the photos
+   divided by the shading (:func:`division_start`), or from its own solve at half the size.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+
+from ..memory import release_free_memory
+from ..parallel import joined, start
+from ..progress import check_cancel, sub_progress
+from .discretization import image_domain, texture_domain
+from .edges import reweighted_lighting, with_edges_freed
+from .lighting import shading
+from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
+from .solver import (
+    Result,
+    SolverParams,
+    _Channel,
+    _iterate,
+    _outputs,
+    _rescaled,
+    channel_threads,
+    solve_joint,
+)
+
+__all__ = [
+    "ALBEDO_LAMBDA",
+    "adapted_albedo_lam",
+    "colour_texture",
+    "division_start",
+    "lighting_data_model",
+    "lighting_stage",
+    "pixels_per_texel",
+    "shading_floor",
+    "solve",
+    "solve_albedo",
+    "solve_two_stage",
+    "thinned_for_lighting",
+]
+
+
+def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
+    """Estimate the albedo and the lighting: in two stages when ``params.albedo_lam`` is set, else jointly.
+
+    Parameters
+    ----------
+    problem : core.solve.problem.Problem
+    params : SolverParams
+    progress : callable(fraction, message), optional
+    cancel : callable() -> bool, optional
+        Polled between steps; when it returns True, :class:`core.errors.Cancelled` is raised.
+    views : bool
+        False: a texture-domain result without its per-view maps (``Result.views`` None), which cost a pass
+        over every observation; the image domain always has them.
+
+    Returns
+    -------
+    Result
+        :func:`solve_two_stage`'s, or :func:`core.solve.solver.solve_joint`'s.
+    """
+    params = params or SolverParams()
+    params.check()
+    params = params.resolved()
+    if params.albedo_lam is None:
+        return solve_joint(problem, params, progress, cancel, views)
+    return solve_two_stage(problem, params, progress, cancel, views)
+
+
+#: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
+#: fixtures (docs/measurements.md); with ``SolverParams.albedo_adapt``, the weight at COLOUR_TEXTURE_REFERENCE.
+ALBEDO_LAMBDA = 20.0
+#: With ``albedo_adapt`` the albedo stage's weight is ``albedo_lam * (f / COLOUR_TEXTURE_REFERENCE) **
+#: -COLOUR_TEXTURE_POWER`` within ``albedo_lam`` times COLOUR_TEXTURE_RANGE, f the photos' colour texture
+#: (:func:`colour_texture`): an albedo with fine changes of colour everywhere wants a weak TV that keeps them,
+#: flat patches a strong one that takes the shading left in them. Fitted by leave-one-scene-out over the 13
+#: fixtures, where the best weight spans 0.05 to 80 (docs/measurements.md).
+COLOUR_TEXTURE_REFERENCE = 0.044
+COLOUR_TEXTURE_POWER = 6.0
+COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
+
+
+# Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
+# lighting says "dark", dividing by it blows the albedo up.
+SHADING_FLOOR = 0.2
+
+
+def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
+    """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
+    pos = shade[shade > 0]
+    return floor * (float(np.median(pos)) if pos.size else 1.0)
+
+
+def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
+    """The shading raised to at least ``floor`` times its median over the positive values."""
+    return np.maximum(shade, shading_floor(shade, floor))
+
+
+def division_start(d, sigma: np.ndarray) -> np.ndarray:
+    """Per unknown, the least-squares albedo of its observations under a fixed lighting: ``(n, C)``.
+
+    ``rho_u = sum_o beta_o a_o I_o / sum_o beta_o a_o^2`` over the observations
+    of unknown u, with the floored shading ``a`` (the minimiser of the data
+    term alone when each observation sees one unknown).
+    """
+    C = d.values.shape[1]
+    out = np.empty((d.n_unknowns, C), np.float32)
+    w = d.obs_weight.astype(np.float64)
+    for c in range(C):
+        a = d.from_pixels(floored(shading(d, sigma[:, c], np.float64)))
+        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
+        den = d.scatter(w * a * a)
+        out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
+    return out
+
+
+def _start(d, sigma, half=None) -> np.ndarray:
+    """The albedo stage's start: the half-size solve where it has a value, else :func:`division_start`."""
+    if half is None:
+        return division_start(d, sigma)
+    rho = half.reshape(-1, half.shape[-1])[d.texel_index].astype(np.float32)
+    missing = ~np.isfinite(rho)
+    if missing.any():
+        rho[missing] = division_start(d, sigma)[missing]
+    return rho
+
+
+#: The albedo stage starts from its own solve at half the size (:func:`solve_albedo`) while its texture has
+#: fewer photo pixels per texel than this: there each texel's division of the photos is mostly noise, which
+#: the MM takes many iterations to smooth and the edge weights would take for changes of colour. Between
+#: 2.03 (lambert_sky at 512², where it paid) and 3.56 (the sparsest fixture at 256², where it did not).
+COARSE_START_PIXELS = 3.0
+#: Iterations at most of that half-size solve, and the least size it is solved at.
+COARSE_START_ITER = 30
+COARSE_START_MIN_SIZE = 64
+#: The half-size solve first runs with the Huber parameter this many times larger, to its stopping rule (at
+#: least WARM_MIN_ITER iterations), then with the solver's own: an MM near L1 crawls, and one a little
+#: smoother gets it near the minimum first. With its tolerance it reached a better start in fewer iterations
+#: (docs/measurements.md).
+COARSE_START_DELTA_FACTOR = 3.0
+COARSE_START_TOL = 1e-3
+WARM_MIN_ITER = 3
+#: Iterations of the texture itself once started from its half-size solve: it is finer than the photos resolve
+#: (fewer than COARSE_START_PIXELS pixels per texel), the half-size solve holds what they tell, and running to
+#: the stopping rule there cost time without making the fixtures more accurate (docs/measurements.md).
+REFINE_ITER = 2
+
+
+def pixels_per_texel(problem) -> float:
+    """Photo pixels on the mesh per texel inside the UV islands of ``problem.texture``."""
+    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
+    return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
+
+
+def thinned_for_lighting(problem, most: float):
+    """``problem`` at every other pixel of every other row, again, while it has more than ``most`` pixels per texel.
+
+    The lighting has a few coefficients per view: 130 pixels per texel (the 2K case's 128² lighting texture)
+    tell it no more than 32 do, at a quarter of the work. Down to 16-28 no fixture changed; at 10-16 some got worse
+    (docs/measurements.md).
+    """
+    while pixels_per_texel(problem) > most:
+        thin = coarsen(problem, texture=False)
+        if thin is None:
+            break
+        problem = thin.on_layout(problem.texture)
+    return problem
+
+
+def _half_size_start(problem, sigma, params, progress, cancel, builds=None):
+    """:func:`solve_albedo` at half the size, sampled bilinearly at the texel centres of ``problem.texture``.
+
+    Returns that texture (NaN where unseen) and a summary of the solve (its size and iterations).
+    """
+    quick = replace(
+        params,
+        max_iter=COARSE_START_ITER,
+        min_iter=min(params.min_iter, COARSE_START_ITER),
+        tol=max(params.tol, COARSE_START_TOL),
+    )
+    size = problem.texture.size // 2
+    half, d = builds.pop(size) if builds and size in builds else (with_texture_size(problem, size), None)
+    warm = COARSE_START_DELTA_FACTOR * params.delta
+    coarse = solve_albedo(
+        half, sigma, quick, None, progress, cancel, d, refine_iter=None, warm_delta=warm, merged=True, builds=builds
+    )
+    fine, _ = upsample_bilinear(coarse.texture, coarse.seen, problem.texture)
+    return fine, {"size": coarse.info["solved_size"], "iterations": coarse.iterations}
+
+
+def _starts_from_half(problem) -> bool:
+    """Whether :func:`solve_albedo` starts this texture-domain problem from its own solve at half the size."""
+    size = problem.texture.size
+    return size >= 2 * COARSE_START_MIN_SIZE and pixels_per_texel(problem) < COARSE_START_PIXELS
+
+
+def _capped_size(problem, params):
+    """The texture size that ``params.max_texels_per_pixel`` solves this problem at, if smaller; else None."""
+    if params.domain != "texture" or params.max_texels_per_pixel <= 0 or problem.texture is None:
+        return None
+    size = supported_size(problem, params.max_texels_per_pixel)
+    return size if size < problem.texture.size else None
+
+
+def _start_builds(problem, params) -> dict:
+    """The half-size starts :func:`solve_albedo` solves, built ahead: ``{size: (problem, discretisation)}``.
+
+    They do not depend on the lighting, so :func:`solve_two_stage` builds them on a thread of their own while
+    the lighting stage runs. The same levels as :func:`solve_albedo` makes, by the same steps.
+    """
+    params = replace(params, lighting="fixed", albedo_lam=None).resolved()
+    if params.domain != "texture" or problem.texture is None:
+        return {}
+    capped = _capped_size(problem, params)
+    if capped is not None:
+        problem = with_texture_size(problem, capped)
+    out = {}
+    while _starts_from_half(problem):
+        problem = with_texture_size(problem, problem.texture.size // 2)
+        out[problem.texture.size] = (problem, texture_domain(problem, data_model="merged", threads=params.threads))
+    return out
+
+
+def solve_albedo(
+    problem,
+    sigma: np.ndarray,
+    params,
+    rho0=None,
+    progress=None,
+    cancel=None,
+    d=None,
+    refine_iter=REFINE_ITER,
+    warm_delta=None,
+    merged=False,
+    views=True,
+    builds=None,
+):
+    """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
+
+    Parameters
+    ----------
+    problem : core.solve.problem.Problem
+    sigma : (m, C, 9) array
+        The lighting of each view (as :class:`core.solve.solver.Result` gives it).
+    params : core.solve.solver.SolverParams
+        ``lam`` is the TV weight, lowered across the changes of colour of the
+        start by ``albedo_edges`` (texture domain); ``max_iter``, ``min_iter``, ``tol``, ``delta``,
+        ``cg_iter``, ``threads``, ``extrapolate`` and ``max_texels_per_pixel``
+        apply as in :func:`core.solve.solver.solve`.
+    rho0 : (n, C) array, optional
+        Start; default :func:`division_start`, or with fewer than
+        :data:`COARSE_START_PIXELS` pixels per texel (texture domain) this
+        function's result at half the size. ``albedo_edges`` takes its edges
+        from the start.
+    d : Discretization, optional
+        The problem's, if already built.
+    refine_iter : int or None
+        Iterations at most after a start from the half-size solve (None: as ``params`` says); the half-size
+        solves themselves run as ``params`` says.
+    warm_delta : float, optional
+        First run the MM with this Huber parameter to the stopping rule (at least :data:`WARM_MIN_ITER`
+        iterations), then with ``params.delta``; ``max_iter`` bounds the two together, and the returned
+        energies are the second run's.
+    merged : bool
+        Texture domain: the "merged" data model (one observation per texel and photo), with no per-view maps
+        in the result; the half-size starts use it.
+    views : bool
+        False: no per-view maps in a texture-domain result (as :func:`core.solve.solver.solve`).
+    builds : dict, optional
+        :func:`_start_builds`' half-size starts, taken out as they are used.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
+    """
+    params = replace(params, lighting="fixed", albedo_lam=None).resolved()
+    t0 = time.perf_counter()
+    sigma = np.asarray(sigma, dtype=np.float64)
+    size = None if d is not None else _capped_size(problem, params)
+    if size is not None:
+        r = solve_albedo(
+            with_texture_size(problem, size),
+            sigma,
+            replace(params, max_texels_per_pixel=0.0),
+            None,
+            progress,
+            cancel,
+            refine_iter=refine_iter,
+            warm_delta=warm_delta,
+            merged=merged,
+            views=views,
+            builds=builds,
+        )
+        r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
+        r.info["solved_size"] = size
+        return r
+    half = coarse = None
+    domain = params.domain if d is None else d.domain
+    if rho0 is None and domain == "texture" and _starts_from_half(problem):
+        # Solved before this size's problem is built, so that the two are not held at once.
+        half, coarse = _half_size_start(
+            problem, sigma, params, sub_progress(progress, 0.0, 0.3, "half size"), cancel, builds
+        )
+        progress = sub_progress(progress, 0.3, 1.0)
+        if refine_iter is not None:
+            params = replace(
+                params, max_iter=min(params.max_iter, refine_iter), min_iter=min(params.min_iter, refine_iter)
+            )
+    t_build0 = time.perf_counter()
+    if d is None:
+        d = (
+            texture_domain(problem, data_model="merged" if merged else params.data_model, threads=params.threads)
+            if params.domain == "texture"
+            else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
+        )
+    t_build = time.perf_counter() - t_build0
+    if rho0 is None:
+        rho0 = _start(d, sigma, half)
+        half = None
+    if params.albedo_edges > 0 and d.domain == "texture":
+        d = with_edges_freed(d, rho0, params.albedo_edges)
+
+    def channel(c):
+        ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
+        shade = floored(ch.shade.astype(np.float64)).astype(ch.ft)
+        ch._set_sigma(ch.sigma, shade)
+        ch.e = ch.energy()
+        return ch
+
+    def report(i, e):
+        if progress is not None:
+            progress(i / params.max_iter, f"iteration {i}, energy {e:.6g}")
+
+    it = 0
+    with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
+        channels = list(pool.map(channel, range(problem.channels)))
+        rho0 = None  # each channel has its own copy
+        release_free_memory()  # the build's temporaries
+        for delta in ([] if warm_delta is None else [warm_delta]) + [params.delta]:
+            if delta != channels[0].delta:
+                for ch in channels:
+                    ch.delta = delta
+                    ch.e = ch.energy()
+            least = params.min_iter if delta == params.delta else min(params.min_iter, WARM_MIN_ITER)
+            history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), t0, it, least, pool)
+            it += len(history) - 1
+    rho, sigma = _rescaled(d, channels)
+    views, texture, seen = _outputs(problem, d, rho, views=views and not merged)
+    info = {
+        "build_seconds": t_build,
+        "solve_seconds": time.perf_counter() - t0 - t_build,
+        "n_unknowns": d.n_unknowns,
+        "domain": d.domain,
+        "solved_size": problem.texture.size if d.domain == "texture" else None,
+        "coarse_start": coarse,
+    }
+    return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
+
+
+#: The least photo pixels per texel (inside the islands) of the lighting stage's texture for its "nearest"
+#: data model; with fewer, texels are left without a pixel of their own, and the 4-texel splat is used.
+#: Between 2.8 (a working resolution of 0.01 MP, where "nearest" failed) and 13.6 (the fewest of the 13
+#: fixtures, where it did as well as the splat; docs/measurements.md).
+NEAREST_MIN_PIXELS_PER_TEXEL = 8
+
+
+def lighting_data_model(problem, model: str) -> str:
+    """The lighting stage's data model: ``model``, except "nearest" on too few pixels (then "splat")."""
+    if model != "nearest" or problem.texture is None:
+        return model
+    return model if pixels_per_texel(problem) >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
+
+
+def lighting_stage(problem, params, progress=None, cancel=None):
+    """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
+
+    Solved on a texture of at most ``params.light_size`` (the lighting has 9
+    coefficients per view and channel; it needs no fine texels) with the data
+    model ``params.light_data_model`` and extrapolation ``params.light_extrapolate``, started from rho = I, and, when
+    ``params.light_edges > 0`` (texture domain), solved again with the albedo
+    edges it found freed (:func:`core.solve.edges.reweighted_lighting`).
+
+    Returns
+    -------
+    (core.solve.problem.Problem, core.solve.solver.Result)
+        The problem it was solved on, and its result (``albedo_lam`` unused).
+    """
+    light_problem = problem
+    if (
+        params.domain == "texture"
+        and params.light_size
+        and problem.texture is not None
+        and problem.texture.size > params.light_size
+    ):
+        light_problem = with_texture_size(problem, params.light_size)
+    if params.domain == "texture" and params.light_pixels > 0:
+        light_problem = thinned_for_lighting(light_problem, params.light_pixels)
+    light_params = replace(params.resolved(), albedo_lam=None, extrapolate=params.light_extrapolate)
+    if params.domain == "texture":
+        light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
+    edges = params.light_edges > 0 and params.domain == "texture"
+    first = solve_joint(light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges else 1.0), cancel)
+    if edges:
+        edges_progress = sub_progress(progress, 0.6, 1.0, "edges")
+        first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
+    first.info["data_model"] = light_params.data_model
+    return light_problem, first
+
+
+def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
+    """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
+
+    Stage 1 is :func:`core.solve.solver.solve` with ``params`` (TV weight
+    ``lam``, lighting model ``params.lighting``), on a texture of at most
+    ``params.light_size`` (the lighting has 9 coefficients; it needs no fine
+    texels). Stage 2 is :func:`solve_albedo` with ``params.albedo_lam`` on the
+    full problem.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        Stage 2's, with stage 1's summary in ``info["lighting_stage"]``.
+    """
+
+    t0 = time.perf_counter()
+    albedo_params = replace(params, lam=params.albedo_lam)
+    # The albedo stage's starts are built while the lighting stage runs (its coarse levels leave a core idle).
+    with joined(start(_start_builds, problem, albedo_params, threads=params.threads)) as builds:
+        light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
+        builds = builds.result()
+    first.views = None  # not needed: free them before the larger stage
+    texture = None
+    if params.albedo_adapt and params.domain == "texture":
+        texture = colour_texture(light_problem, first.sigma)
+        albedo_params = replace(albedo_params, lam=adapted_albedo_lam(params.albedo_lam, texture))
+    light_pixels = sum(int(m.sum()) for m in light_problem.masks)
+    light_problem = None  # its thinned photos too
+    t1 = time.perf_counter()
+    albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
+    if texture is not None:
+        albedo_progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
+    second = solve_albedo(
+        problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views, builds=builds
+    )
+    second.info["lighting_stage"] = {
+        "iterations": first.iterations,
+        "energy": first.energy[-1:],
+        "solved_size": first.info.get("solved_size"),
+        "lam": params.lam,
+        "lighting": params.lighting,
+        "edges": first.info.get("edges"),
+        "data_model": first.info.get("data_model"),
+        "pixels": light_pixels,
+        "seconds": t1 - t0,
+    }
+    second.info["albedo_lam"] = albedo_params.lam
+    second.info["colour_texture"] = texture
+    second.info["elapsed"] = [time.perf_counter() - t0]
+    return second
+
+
+def colour_texture(problem, sigma: np.ndarray) -> float:
+    """How much fine colour texture the photos show: the median change of chromaticity between neighbouring
+    texels of the photos divided by their shading (:func:`division_start`, nearest texel), on the problem's
+    texture (:func:`solve_two_stage` gives it the lighting stage's, at most 128², where the rule was fitted).
+
+    Chromaticity (``3 rho / sum(rho)``) hardly changes with the shading, so where the lighting left shading in
+    the division this measures the albedo's own changes of colour. NaN when no two neighbouring texels are seen.
+    """
+    if problem.channels != 3:  # grey photos: no colour to change
+        return float("nan")
+    size = problem.texture.size
+    d = texture_domain(problem, data_model="nearest")
+    img = np.full((size * size, 3), np.nan)
+    img[d.texel_index] = division_start(d, sigma)
+    img = img.reshape(size, size, 3)
+    total = img.sum(axis=-1)
+    seen = np.isfinite(total) & (total > 0)
+    chroma = 3 * img / np.maximum(total, 1e-4)[..., None]
+    steps = []
+    for axis in (0, 1):
+        step = np.diff(chroma, axis=axis)
+        both = np.delete(seen, -1, axis) & np.delete(seen, 0, axis)
+        steps.append(np.sqrt((step[both] ** 2).sum(axis=-1)))
+    steps = np.concatenate(steps)
+    return float(np.median(steps)) if steps.size else float("nan")
+
+
+def adapted_albedo_lam(albedo_lam: float, texture: float) -> float:
+    """The albedo stage's TV weight for the photos' :func:`colour_texture` (``albedo_lam`` where it is NaN)."""
+    if not np.isfinite(texture):
+        return albedo_lam
+    lo, hi = COLOUR_TEXTURE_RANGE
+    factor = (max(texture, 1e-12) / COLOUR_TEXTURE_REFERENCE) ** -COLOUR_TEXTURE_POWER
+    return float(albedo_lam * np.clip(factor, lo, hi))
