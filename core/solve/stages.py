@@ -57,21 +57,8 @@ __all__ = [
 def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
     """Estimate the albedo and the lighting: in two stages when ``params.albedo_lam`` is set, else jointly.
 
-    Parameters
-    ----------
-    problem : core.solve.problem.Problem
-    params : SolverParams
-    progress : callable(fraction, message), optional
-    cancel : callable() -> bool, optional
-        Polled between steps; when it returns True, :class:`core.errors.Cancelled` is raised.
-    views : bool
-        False: a texture-domain result without its per-view maps (``Result.views`` None), which cost a pass
-        over every observation; the image domain always has them.
-
-    Returns
-    -------
-    Result
-        :func:`solve_two_stage`'s, or :func:`core.solve.solver.solve_joint`'s.
+    The parameters are :func:`core.solve.solver.solve_joint`'s; returns :func:`solve_two_stage`'s result, or
+    :func:`core.solve.solver.solve_joint`'s.
     """
     params = params or SolverParams()
     params.check()
