@@ -41,7 +41,7 @@ land on the same texel *are* the correspondences. Four data models:
   linear in the transfer; what differs between the pixels is below the
   texel's scale. The albedo stage's half-size starts use it, at sizes
   coarser than the photos, where it cuts the observations 3-9 times. It
-  has no per-pixel maps (:func:`core.solve.solver._outputs` gives none).
+  has no per-pixel maps (:func:`core.solve.solver.result_maps` gives none).
 
 In all, ``u_o`` generalises to a row of ``A`` (a selection row for the image
 domain and the splat).

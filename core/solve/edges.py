@@ -20,7 +20,7 @@ import numpy as np
 
 from ..progress import check_cancel
 from .discretization import texture_domain
-from .solver import Result, _Channel, _iterate, _outputs, _rescaled
+from .solver import Channel, Result, iterate, rescaled, result_maps
 
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
@@ -81,15 +81,15 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     rho = first.texture.reshape(-1, C)[d.texel_index]
     rho = np.where(np.isfinite(rho), rho, d.rho0)
     d = with_edges_freed(d, rho, params.light_edges)
-    channels = [_Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
+    channels = [Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
 
     def report(it, e):
         if progress is not None:
             progress(it / params.max_iter, f"iteration {it}, energy {e:.6g}")
 
-    history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
-    rho, sigma = _rescaled(d, channels)
-    views, texture, seen = _outputs(problem, d, rho)
+    history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
+    rho, sigma = rescaled(d, channels)
+    views, texture, seen = result_maps(problem, d, rho)
     info = dict(first.info, edges={"iterations": len(history) - 1, "energy": history[-1:]})
     return Result(
         sigma=sigma,

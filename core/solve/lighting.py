@@ -4,7 +4,7 @@ The shading of pixel p of view v is ``sigma_v . nu_p`` (:func:`shading`), ``nu_p
 its transfer with occlusion and a sun, :mod:`core.geometry.transfer`). The paper gives every view 9 free SH
 coefficients per channel. Under one fixed light (the common capture) that is 9 m numbers where the scene has 9,
 and the spare freedom lets each view's lighting absorb part of the albedo: alternating from rho = I does not
-resolve the albedo-lighting ambiguity. So the sigma-step (:meth:`core.solve.solver._Channel.sigma_step`) has
+resolve the albedo-lighting ambiguity. So the sigma-step (:meth:`core.solve.solver.Channel.sigma_step`) has
 three models, chosen by ``SolverParams.lighting``:
 
 * ``"per_view"``: the paper's, 9 free coefficients per view (:func:`per_view_lighting_step`);
@@ -104,7 +104,7 @@ def shared_lighting_step(
     ----------
     Ms, bs : (m, 9, 9), (m, 9) arrays
         Each view's normal equations at the current majorant
-        (:meth:`core.solve.solver._Channel.normal_equations`).
+        (:meth:`core.solve.solver.Channel.normal_equations`).
     sigma_views : (m, 9) array
         The current lighting of each view, ``g_v s``.
     rounds : int

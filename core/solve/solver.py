@@ -61,7 +61,18 @@ from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels
 from .sh import diffuse, view_normal_equations
 from .spmv import matvec_into, scatter_add
 
-__all__ = ["SolverParams", "Result", "solve_joint", "energy"]
+__all__ = [
+    "SolverParams",
+    "Result",
+    "solve_joint",
+    "energy",
+    "Channel",
+    "iterate",
+    "rescaled",
+    "result_maps",
+    "channel_threads",
+    "release_after_iteration",
+]
 
 
 @dataclass
@@ -363,7 +374,7 @@ def energy(d: Discretization, rho: np.ndarray, sigma: np.ndarray, lam: float, mu
     )
 
 
-class _Channel:
+class Channel:
     """The MM state of one colour channel."""
 
     def __init__(self, d: Discretization, c: int, params: SolverParams, rho0=None, sigma0=None, hierarchy=None):
@@ -679,12 +690,10 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     if params.preconditioner == "multigrid" and d.B.shape[0] and d.diagonal_data:
         hierarchy = Hierarchy(block_grid(problem, d), d.B, d.BT)
     channels = [
-        _Channel(
-            d, c, params, None if rho0 is None else rho0[:, c], None if sigma0 is None else sigma0[:, c], hierarchy
-        )
+        Channel(d, c, params, None if rho0 is None else rho0[:, c], None if sigma0 is None else sigma0[:, c], hierarchy)
         for c in range(problem.channels)
     ]
-    history, elapsed = _iterate(
+    history, elapsed = iterate(
         channels,
         params,
         lambda it, e: report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {e:.6g}"),
@@ -693,8 +702,8 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     )
     check_cancel()
     it = len(history) - 1
-    rho, sigma = _rescaled(d, channels)
-    views, texture, seen = _outputs(problem, d, rho, views)
+    rho, sigma = rescaled(d, channels)
+    views, texture, seen = result_maps(problem, d, rho, views)
     report(1.0, f"done in {it} iterations")
     info = {
         "build_seconds": t_build,
@@ -732,7 +741,7 @@ def _warm_start(problem, d: Discretization, below: Result):
     return np.where(np.isfinite(up), up, d.rho0), below.sigma
 
 
-def _iterate(channels, params: SolverParams, report, check_cancel, t0: float, done: int = 0, least=None, pool=None):
+def iterate(channels, params: SolverParams, report, check_cancel, t0: float, done: int = 0, least=None, pool=None):
     """The outer MM loop over all channels; returns the energy history and its times since ``t0``.
 
     Iterations are numbered on from ``done`` up to ``params.max_iter``, and
@@ -763,7 +772,7 @@ def _iterate(channels, params: SolverParams, report, check_cancel, t0: float, do
     return history, elapsed
 
 
-def _rescaled(d: Discretization, channels):
+def rescaled(d: Discretization, channels):
     """rho (n, C) and sigma (m, C, 9), scaled so that the mean shading over the observations is 1 per channel."""
     rho = np.stack([ch.rho for ch in channels], axis=1)
     sigma = np.stack([ch.sigma for ch in channels], axis=1)
@@ -775,7 +784,7 @@ def _rescaled(d: Discretization, channels):
     return rho, sigma
 
 
-def _outputs(problem, d: Discretization, rho: np.ndarray, views: bool = True):
+def result_maps(problem, d: Discretization, rho: np.ndarray, views: bool = True):
     """Per-view reflectance maps (None without ``views``, texture domain only), and the texture in the texture
     domain."""
     maps = _view_maps(problem, d, rho) if views or d.domain == "image" else None
@@ -814,7 +823,7 @@ def _view_maps(problem, d: Discretization, rho: np.ndarray) -> list:
     return maps
 
 
-def _gauss_newton_step(ch: _Channel) -> bool:
+def _gauss_newton_step(ch: Channel) -> bool:
     """One Gauss-Newton step on rho and sigma together, on the current majorant.
 
     Plain alternation crawls along the valley where rho and sigma trade off.
@@ -844,7 +853,7 @@ def _gauss_newton_step(ch: _Channel) -> bool:
     return False
 
 
-def _joint_system(ch: _Channel, rho: np.ndarray):
+def _joint_system(ch: Channel, rho: np.ndarray):
     """The Gauss-Newton normal equations in ``(rho, sigma)`` at ``rho`` and the channel's sigma.
 
     Returns

@@ -28,13 +28,13 @@ from .edges import reweighted_lighting, with_edges_freed
 from .lighting import shading
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .solver import (
+    Channel,
     Result,
     SolverParams,
-    _Channel,
-    _iterate,
-    _outputs,
-    _rescaled,
     channel_threads,
+    iterate,
+    rescaled,
+    result_maps,
     solve_joint,
 )
 
@@ -323,7 +323,7 @@ def solve_albedo(
         d = with_edges_freed(d, rho0, params.albedo_edges)
 
     def channel(c):
-        ch = _Channel(d, c, params, rho0[:, c], sigma[:, c])
+        ch = Channel(d, c, params, rho0[:, c], sigma[:, c])
         shade = floored(ch.shade.astype(np.float64)).astype(ch.ft)
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
@@ -344,10 +344,10 @@ def solve_albedo(
                     ch.delta = delta
                     ch.e = ch.energy()
             least = params.min_iter if delta == params.delta else min(params.min_iter, WARM_MIN_ITER)
-            history, _ = _iterate(channels, params, report, lambda: check_cancel(cancel), t0, it, least, pool)
+            history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), t0, it, least, pool)
             it += len(history) - 1
-    rho, sigma = _rescaled(d, channels)
-    views, texture, seen = _outputs(problem, d, rho, views=views and not merged)
+    rho, sigma = rescaled(d, channels)
+    views, texture, seen = result_maps(problem, d, rho, views=views and not merged)
     info = {
         "build_seconds": t_build,
         "solve_seconds": time.perf_counter() - t0 - t_build,
