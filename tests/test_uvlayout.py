@@ -308,3 +308,33 @@ def test_a_sliver_across_islands_counts_as_stretched_by_its_long_edge():
         layout = texture_layout(all_uv, all_pos, np.concatenate([tri_vert, [[1, 8, 9]]]), n)
         np.testing.assert_array_equal(layout.texel_pos[base.inside], base.texel_pos[base.inside])
         np.testing.assert_array_equal(layout.seam_pairs, base.seam_pairs)
+
+
+def test_row_spans_keep_every_texel_of_the_whole_box(monkeypatch):
+    """The rasteriser's runs per row drop no texel that testing each triangle's whole box would keep."""
+    from core.geometry import texels
+
+    rng = np.random.default_rng(3)
+    # Random triangles, some with axis-aligned edges (a zero coefficient) and some slivers.
+    tri_uv = rng.uniform(-0.05, 1.05, (60, 3, 2))
+    tri_uv[:10, 1, 1] = tri_uv[:10, 0, 1]  # a horizontal edge
+    tri_uv[10:20, 2, 0] = tri_uv[10:20, 0, 0]  # a vertical edge
+    tri_uv[20:25, 2] = tri_uv[20:25, 0] + 1e-3 * (tri_uv[20:25, 1] - tri_uv[20:25, 0])  # slivers
+    tri_pos = np.concatenate([tri_uv, rng.uniform(0, 1, (60, 3, 1))], axis=2)
+    tri_vert = np.arange(180).reshape(60, 3)
+
+    def whole_box(a, b, c, slack, lo, hi, ok):
+        w = np.where(ok, np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), 0)
+        h = np.where(ok & (w > 0), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0), 0)
+        tri = np.repeat(np.arange(len(h)), h)
+        row = np.repeat(lo[:, 1], h) + (np.arange(tri.size) - np.repeat(np.cumsum(h) - h, h))
+        return tri, row, lo[tri, 0], w[tri]
+
+    for size in (17, 64):
+        spans = texture_layout(tri_uv, tri_pos, tri_vert, size)
+        monkeypatch.setattr(texels, "_row_spans", whole_box)
+        boxes = texture_layout(tri_uv, tri_pos, tri_vert, size)
+        monkeypatch.undo()
+        assert spans.inside.sum() > 0.3 * size * size
+        assert np.array_equal(spans.texel_pos, boxes.texel_pos, equal_nan=True)
+        assert np.array_equal(spans.seam_pairs, boxes.seam_pairs)

@@ -291,6 +291,34 @@ def uv_stretched(tri_uv, tri_pos, factor=STRETCH_FACTOR):
     return stretched | (usable & np.any(edge_ratio > factor * edge_median, axis=1))
 
 
+def _row_spans(a, b, c, slack, lo, hi, ok):
+    """The candidate texels of each triangle as runs on the rows of its box: triangle, row, first column, length.
+
+    On each row, the columns where every ``lambda_i + slack_i >= 0`` (a linear bound in x per edge), widened
+    by a texel each side against rounding: :func:`_rasterise` tests each candidate exactly, in the same order
+    as over the whole box (triangle, then row, then column), and a triangle fills about half its box.
+    """
+    h = np.where(ok & (hi[:, 0] >= lo[:, 0]), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0), 0)
+    tris = np.flatnonzero(h > 0)
+    tri = np.repeat(tris, h[tris])
+    first = np.repeat(np.cumsum(h[tris]) - h[tris], h[tris])
+    row = np.repeat(lo[tris, 1], h[tris]) + (np.arange(tri.size) - first)
+    x0 = lo[tri, 0].astype(np.float64)
+    x1 = hi[tri, 0].astype(np.float64)
+    yf = row.astype(np.float64)
+    for i in range(3):
+        ai = a[tri, i]
+        rest = b[tri, i] * yf + c[tri, i] + slack[tri, i]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = -rest / np.where(ai != 0, ai, 1.0)
+        x0 = np.where(ai > 0, np.maximum(x0, np.floor(bound) - 1), x0)
+        x1 = np.where(ai < 0, np.minimum(x1, np.ceil(bound) + 1), x1)
+        x1 = np.where((ai == 0) & (rest < 0), x0 - 1, x1)
+    length = np.maximum(x1 - x0 + 1, 0).astype(np.int64)
+    keep = length > 0
+    return tri[keep], row[keep], x0[keep].astype(np.int64), length[keep]
+
+
 def _rasterise(q, tri_pos, n, margin, low_priority=None):
     """World position per texel by conservative rasterisation (see :func:`texture_layout`)."""
     a, b, c, ok = _barycentric_planes(q)
@@ -310,20 +338,18 @@ def _rasterise(q, tri_pos, n, margin, low_priority=None):
     hi = np.clip(hi, -1, n - 1)
     outside = (q.max(axis=1) + grow < 0) | (q.min(axis=1) - grow > n - 1)
     hi = np.where(outside, lo - 1, hi)
-    w = np.where(ok, np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), 0)
-    h = np.where(ok, np.maximum(hi[:, 1] - lo[:, 1] + 1, 0), 0)
-    offs = np.concatenate([[0], np.cumsum(w * h)])
+    span_tri, span_row, span_x0, span_len = _row_spans(a, b, c, slack, lo, hi, ok)
+    offs = np.concatenate([[0], np.cumsum(span_len)])
     total = int(offs[-1])
 
     best = np.full(n * n, -np.inf)
     pos = np.full((n * n, 3), np.nan, dtype=np.float32)
     for k0 in range(0, total, _BLOCK):
         k = np.arange(k0, min(k0 + _BLOCK, total), dtype=np.int64)
-        t = np.searchsorted(offs, k, side="right") - 1
-        local = k - offs[t]
-        wt = w[t]
-        y = lo[t, 1] + local // wt
-        x = lo[t, 0] + local % wt
+        span = np.searchsorted(offs, k, side="right") - 1
+        t = span_tri[span]
+        y = span_row[span]
+        x = span_x0[span] + (k - offs[span])
         xf = x.astype(np.float64)
         yf = y.astype(np.float64)
         lam = [a[t, i] * xf + b[t, i] * yf + c[t, i] for i in range(3)]
