@@ -20,7 +20,7 @@ import numpy as np
 
 from ..progress import check_cancel
 from .discretization import texture_domain
-from .solver import Channel, Result, iterate, rescaled, result_maps
+from .solver import Channel, Result, iterate, iteration_report, rescaled, result_maps
 
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
@@ -83,10 +83,7 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     d = with_edges_freed(d, rho, params.light_edges)
     channels = [Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
 
-    def report(it, e):
-        if progress is not None:
-            progress(it / params.max_iter, f"iteration {it}, energy {e:.6g}")
-
+    report = iteration_report(progress, params.max_iter)
     history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
     rho, sigma = rescaled(d, channels)
     views, texture, seen = result_maps(problem, d, rho)

@@ -68,6 +68,7 @@ __all__ = [
     "energy",
     "Channel",
     "iterate",
+    "iteration_report",
     "rescaled",
     "result_maps",
     "channel_threads",
@@ -696,7 +697,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     history, elapsed = iterate(
         channels,
         params,
-        lambda it, e: report(base + (1 - base) * it / params.max_iter, f"iteration {it}, energy {e:.6g}"),
+        iteration_report(lambda frac, msg: report(base + (1 - base) * frac, msg), params.max_iter),
         check_cancel,
         t0,
     )
@@ -739,6 +740,17 @@ def _warm_start(problem, d: Discretization, below: Result):
     else:
         up = np.concatenate([upsample_pixels(v, m) for v, m in zip(below.views, problem.masks)])
     return np.where(np.isfinite(up), up, d.rho0), below.sigma
+
+
+def iteration_report(progress, max_iter: int):
+    """``report(iteration, energy)`` for :func:`iterate`: ``progress`` (None: nothing) told the iteration's
+    fraction of ``max_iter`` and its energy."""
+
+    def report(it, e):
+        if progress is not None:
+            progress(it / max_iter, f"iteration {it}, energy {e:.6g}")
+
+    return report
 
 
 def iterate(channels, params: SolverParams, report, check_cancel, t0: float, done: int = 0, least=None, pool=None):

@@ -33,6 +33,7 @@ from .solver import (
     SolverParams,
     channel_threads,
     iterate,
+    iteration_report,
     rescaled,
     result_maps,
     solve_joint,
@@ -329,10 +330,7 @@ def solve_albedo(
         ch.e = ch.energy()
         return ch
 
-    def report(i, e):
-        if progress is not None:
-            progress(i / params.max_iter, f"iteration {i}, energy {e:.6g}")
-
+    report = iteration_report(progress, params.max_iter)
     it = 0
     with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
         channels = list(pool.map(channel, range(problem.channels)))
