@@ -16,13 +16,17 @@ def test_thread_map_keeps_the_order_and_reports_each_item_in_turn():
 
 def test_thread_map_stops_when_done_raises():
     started = []
+    go = threading.Event()
 
     def work(x):
         started.append(x)
+        if x > 0:  # no later item can end before done(0) has run: the race cannot finish them all first
+            assert go.wait(10)
         return x
 
     def done(i):
         if i == 0:
+            go.set()
             raise RuntimeError("cancelled")
 
     with pytest.raises(RuntimeError, match="cancelled"):
