@@ -67,7 +67,8 @@ def _bake_with_bpy(fixture_dir, object_name):
     from blender_addon.pipeline import Options, prepare
 
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"), load_ui=False)
-    opt = Options(object_name=object_name, out_dir=os.path.join(CACHE, "unused"), overwrite=True)
+    # The cameras as the scene has them: run_ours aligns the photos as the add-on does, `project` does not.
+    opt = Options(object_name=object_name, out_dir=os.path.join(CACHE, "unused"), overwrite=True, align_photos=False)
     return prepare(bpy.context.scene, opt)
 
 
@@ -152,12 +153,19 @@ def _scored(result, gt, inside):
 
 
 def evaluate(name, fixture_dir, size, sets, ceiling=True):
+    from core.geometry.align import align_views
+    from core.pipeline import Options
+
     record, inputs, bakes = load_case(name, fixture_dir)
     truth_size = min(size, record["albedo_gt"]["size"][0])
     gt, inside = truth(fixture_dir, record, truth_size)
     row = {"fixture": name, "texture_size": size, "set": {k: repr(v) for k, v in sets.items()}}
     proj = run_project(inputs, bakes, size)
     row["project"] = _scored(proj, gt, inside)
+    if sets.get("align_photos", Options.align_photos):
+        # Our run and its ceiling on the cameras as the add-on moves them.
+        inputs, bakes, alignment = align_views(inputs, bakes, size)
+        row["cameras_moved"] = int(alignment.applied.sum())
     ours, secs = run_ours(inputs, bakes, size, sets)
     row["ours"] = _scored(ours, gt, inside)
     row["ours_seconds"] = secs

@@ -222,6 +222,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
     sun: spec_property("sun")
+    align_photos: spec_property("align_photos")
     mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
@@ -263,6 +264,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             lighting=self.lighting,
             occlusion=self.occlusion,
             sun=self.sun,
+            align_photos=self.align_photos,
             mask_clipped=self.mask_clipped,
             mu=self.mu,
             max_iter=self.max_iter,

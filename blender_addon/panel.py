@@ -34,6 +34,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     lighting: spec_property("lighting")
     occlusion: spec_property("occlusion")
     sun: spec_property("sun")
+    align_photos: spec_property("align_photos")
     mask_clipped: spec_property("mask_clipped")
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
@@ -56,6 +57,7 @@ _SAME = (
     "lighting",
     "occlusion",
     "sun",
+    "align_photos",
     "mask_clipped",
     "mu",
     "max_iter",
@@ -111,6 +113,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         sub.prop(s, "lighting")
         sub.prop(s, "occlusion")
         sub.prop(s, "sun")
+        sub.prop(s, "align_photos")
         sub.prop(s, "mask_clipped")
         if s.method == "image":
             sub.prop(s, "mu")

@@ -46,6 +46,7 @@ class Prepared:
     warnings: list = field(default_factory=list)
     peaks: dict = field(default_factory=dict)  # peak memory (MB) at the end of each stage
     photos: PhotoCache | None = None  # the full-resolution photos' temporary copies, for the detail stage
+    alignment: object = None  # core.geometry.align.Alignment with the option align_photos, else None
 
     def release(self):
         """Remove the full-resolution photos' temporary copies (once the detail stage is done, or on failure)."""
@@ -193,9 +194,8 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
     check_cancel(cancel)
 
     t = time.perf_counter()
-    bakes = _bake.bake_views(
-        scene, inputs, progress=stage_progress(progress, "bake", stages), cancel=cancel, threads=options.threads
-    )
+    bake_progress = stage_progress(progress, "bake", stages)
+    bakes = _bake.bake_views(scene, inputs, progress=bake_progress, cancel=cancel, threads=options.threads)
     times["bake"], peaks["bake"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
@@ -211,6 +211,17 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
     if len(keep) < len(bakes):
         inputs.views = [inputs.views[i] for i in keep]
         bakes = [bakes[i] for i in keep]
+    alignment = None
+    if options.align_photos:
+        from .core.geometry.align import align_views
+
+        t = time.perf_counter()
+        bake_progress(1.0, "aligning the photos")
+        inputs, bakes, alignment = align_views(inputs, bakes, options.texture_size, options.threads)
+        times["align"], peaks["align"] = time.perf_counter() - t, peak_mb()
+        moved = int(alignment.applied.sum())
+        bake_progress(1.0, f"{moved} of {len(bakes)} cameras moved to line their photos up")
+        check_cancel(cancel)
     warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
     warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views], [b.mask for b in bakes])
     return Prepared(
@@ -222,6 +233,7 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         warnings=warnings,
         peaks=peaks,
         photos=photos,
+        alignment=alignment,
     )
 
 
@@ -245,6 +257,18 @@ def _lighting_outputs(prepared, computed, files):
     )
 
 
+def _camera_alignment(alignment, i):
+    """One camera's line of the report: the shift applied and the one measured (pixels), or None without."""
+    if alignment is None:
+        return None
+    return {
+        "shift_px": [float(x) for x in alignment.shift[i]],
+        "measured_px": [float(x) for x in alignment.measured[i]],
+        "spread_px": float(alignment.spread[i]) if np.isfinite(alignment.spread[i]) else None,
+        "applied": bool(alignment.applied[i]),
+    }
+
+
 def _report_json(prepared, computed, files, times):
     import bpy
 
@@ -263,6 +287,7 @@ def _report_json(prepared, computed, files, times):
             "lighting": computed.info.get("lighting_mode", opt.lighting),
             "occlusion": opt.occlusion,
             "sun": computed.info.get("sun", {"used": False}) if opt.sun else None,
+            "align_photos": opt.align_photos,
             "mask_clipped": opt.mask_clipped,
             "mu": opt.mu,
             "max_iter": opt.max_iter,
@@ -279,8 +304,9 @@ def _report_json(prepared, computed, files, times):
                 "size": [int(v.photo.shape[1]), int(v.photo.shape[0])],
                 "full_size": [int(v.full.camera.width), int(v.full.camera.height)] if v.full is not None else None,
                 "pixels_on_mesh": int(np.count_nonzero(b.mask)),
+                "alignment": _camera_alignment(prepared.alignment, i),
             }
-            for v, b, f in zip(prepared.inputs.views, prepared.bakes, files)
+            for i, (v, b, f) in enumerate(zip(prepared.inputs.views, prepared.bakes, files))
         ],
         "times_s": times,
         "peak_mb": prepared.peaks,

@@ -262,6 +262,15 @@ SPEC = (
         flag="--sun",
     ),
     Option(
+        "align_photos",
+        "bool",
+        False,
+        "Align photos",
+        "Move each camera by the sub-pixel shift that lines its photo's fine detail up with the other photos' "
+        "(photogrammetry cameras are often about a pixel off); the scene's cameras are not changed",
+        flag="--align-photos",
+    ),
+    Option(
         "mask_clipped",
         "bool",
         False,
@@ -431,6 +440,7 @@ RUN_FIELDS = (
     "lighting",
     "occlusion",
     "sun",
+    "align_photos",
     "mask_clipped",
     "mu",
     "max_iter",

@@ -28,6 +28,7 @@ __all__ = [
     "texel_index",
     "bilinear_texels",
     "texture_layout",
+    "pixel_matched_size",
     "uv_stretched",
     "triangle_areas",
     "STRETCH_FACTOR",
@@ -494,3 +495,28 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
     # A stretched triangle's edges are no seam: its UVs span a gap, not a cut.
     pairs = _seam_pairs(q[~stretched], tri_vert[~stretched], inside, n)
     return TextureLayout(texel_pos=pos, seam_pairs=pairs)
+
+
+def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
+    """A texture size halved from ``n`` (at most 2048) until the median view has about ``pixels_per_texel``
+    pixels per texel it reaches, so that a texture made from the photos' pixels has no holes between them.
+
+    Parameters
+    ----------
+    masks, uvs : lists of (H, W) bool and (H, W, 2) arrays
+        The bake's, one per view.
+    n : int
+    pixels_per_texel : float
+    """
+    size = min(int(n), 2048)
+    while size > 16:
+        ratios = []
+        for m, uv in zip(masks, uvs):
+            t = texel_index(uv[m], size)
+            hit = np.unique(t[t >= 0]).size
+            if hit:
+                ratios.append(t.size / hit)
+        if not ratios or np.median(ratios) >= pixels_per_texel:
+            break
+        size //= 2
+    return size

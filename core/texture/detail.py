@@ -32,7 +32,7 @@ import scipy.ndimage as ndi
 from ..errors import DelightError
 from ..geometry.bake import bake_rows, mesh_normals
 from ..geometry.bilinear import interpolate
-from ..geometry.texels import bilinear_texels, texel_index
+from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
 from ..solve.stages import shading_floor
@@ -94,23 +94,6 @@ def _log_ratio(q, b):
     return np.sqrt(np.mean(e * e, axis=1))
 
 
-def _reference_size(masks, uvs, n) -> int:
-    """A texture size for :func:`agreement`'s reference: halved from ``n`` (at most 2048) until the median view
-    has about two pixels per texel it reaches, so that each texel's median draws on whole pixels."""
-    size = min(int(n), 2048)
-    while size > 16:
-        ratios = []
-        for m, uv in zip(masks, uvs):
-            t = texel_index(uv[m], size)
-            hit = np.unique(t[t >= 0]).size
-            if hit:
-                ratios.append(t.size / hit)
-        if not ratios or np.median(ratios) >= 2.0:
-            break
-        size //= 2
-    return size
-
-
 def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None) -> list:
     """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
 
@@ -141,7 +124,7 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, su
         pos = None if sun is None else positions[v][m]
         q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor, sun, pos)
         own.append(q)
-    size = _reference_size(masks, uvs, 2048)
+    size = pixel_matched_size(masks, uvs, 2048)
     ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
     flat = ref.reshape(size * size, -1)
     everywhere = np.ones((size, size), bool)

@@ -42,6 +42,7 @@ OPERATOR = {
     "lighting": "lighting",
     "occlusion": "occlusion",
     "sun": "sun",
+    "align_photos": "align_photos",
     "mask_clipped": "mask_clipped",
 }
 

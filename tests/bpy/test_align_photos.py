@@ -1,0 +1,49 @@
+"""The option ``align_photos`` on a reduced bowl_jitter (cameras about a pixel off the ones that rendered), through
+real Blender: the cameras that are off are moved, the albedo is closer to the truth, the scene is left as it was.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from conftest import needs_fixture_maker  # noqa: E402
+from test_accuracy import TEX, make_fixtures, run_fixture  # noqa: E402
+
+from bench.accuracy import texture_rmse  # noqa: E402
+
+pytestmark = [pytest.mark.bpy, needs_fixture_maker]
+
+
+@pytest.fixture(scope="module")
+def small_jitter(tmp_path_factory):
+    """bowl_jitter at 320x240, 8 cameras, 16 samples, 128^2 truth."""
+    out = tmp_path_factory.mktemp("jitter")
+    make_fixtures().generate("bowl_jitter", str(out), resolution=(320, 240), n_cameras=8, samples=16, texture_size=TEX)
+    return os.path.join(str(out), "bowl_jitter")
+
+
+def _cameras():
+    return {o.name: [list(r) for r in o.matrix_world] for o in bpy.data.objects if o.type == "CAMERA"}
+
+
+def test_cameras_a_pixel_off_are_moved_and_the_albedo_improves(small_jitter, tmp_path):
+    plain, _, _, gt = run_fixture(small_jitter, tmp_path / "plain")
+    before = _cameras()
+    aligned, report, record, _ = run_fixture(small_jitter, tmp_path / "aligned", align_photos=True)
+    assert _cameras() == before  # the scene's cameras are not changed
+    assert report["parameters"]["align_photos"] is True
+    lines = {c["name"]: c["alignment"] for c in report["cameras"]}
+    moved = [n for n, a in lines.items() if a["applied"]]
+    assert len(moved) >= len(lines) // 2, lines
+    # Each applied shift is about the size of the camera's known error (scene.json: its reprojection, in pixels).
+    off = {c["name"]: c["jitter"]["reprojection_px"]["mean"] for c in record["cameras"]}
+    for n in moved:
+        assert 0.25 <= np.hypot(*lines[n]["shift_px"]) <= 2.0 * off[n] + 0.3, (n, lines[n], off[n])
+    ours = np.mean(texture_rmse(aligned.albedo_path, gt)[0])
+    base = np.mean(texture_rmse(plain.albedo_path, gt)[0])
+    assert ours < 0.97 * base, (ours, base)
