@@ -220,7 +220,12 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         inputs, bakes, alignment = align_views(inputs, bakes, options.texture_size, options.threads)
         times["align"], peaks["align"] = time.perf_counter() - t, peak_mb()
         moved = int(alignment.applied.sum())
-        bake_progress(1.0, f"{moved} of {len(bakes)} cameras moved to line their photos up")
+        bake_progress(
+            1.0,
+            f"{moved} of {len(bakes)} cameras moved to line their photos up"
+            if alignment.mesh_fits
+            else "no camera moved: the photos do not line up with the mesh by one shift each",
+        )
         check_cancel(cancel)
     warnings += check_uv_layout(inputs.mesh.tri_uv, inputs.mesh.tri_pos, options.texture_size)
     warnings += check_photos([v.name for v in inputs.views], [v.photo for v in inputs.views], [b.mask for b in bakes])
@@ -287,7 +292,9 @@ def _report_json(prepared, computed, files, times):
             "lighting": computed.info.get("lighting_mode", opt.lighting),
             "occlusion": opt.occlusion,
             "sun": computed.info.get("sun", {"used": False}) if opt.sun else None,
-            "align_photos": opt.align_photos,
+            "align_photos": None
+            if prepared.alignment is None
+            else {"cameras_moved": int(prepared.alignment.applied.sum()), "mesh_fits": prepared.alignment.mesh_fits},
             "mask_clipped": opt.mask_clipped,
             "mu": opt.mu,
             "max_iter": opt.max_iter,

@@ -25,7 +25,7 @@ def _uv(x, y, offset):
 
 def _views(shifts, split=None, seed=0):
     """Photos, masks and UVs of views of one texture; view i's photo shows at ``x + shifts[i]`` what its UV says
-    is at ``x``, under a smooth shading and a gain of its own. ``split``: (view, shift of the right half)."""
+    is at ``x``, under a smooth shading and a gain of its own. ``split``: {view: the shift of its right half}."""
     tex = _texture(seed)
     rng = np.random.default_rng(seed + 1)
     y, x = np.mgrid[0:H, 0:W].astype(np.float64)
@@ -34,9 +34,9 @@ def _views(shifts, split=None, seed=0):
         offset = rng.uniform(0, 30, 2)
         sx = np.full_like(x, s[0])
         sy = np.full_like(y, s[1])
-        if split is not None and split[0] == i:
+        if split and i in split:
             right = x >= W / 2
-            sx[right], sy[right] = split[1]
+            sx[right], sy[right] = split[i]
         shown = _uv(x - sx, y - sy, offset)
         full = np.ones((H, W), bool)
         shading = (0.6 + 0.4 * np.cos(0.02 * x + i) * np.sin(0.015 * y + 2 * i))[..., None]
@@ -69,7 +69,7 @@ def test_no_shift_where_the_halves_of_a_photo_disagree():
     """A photo whose misregistration changes across it (a mesh that is not the surface) keeps its camera."""
     shifts = np.zeros((6, 2))
     shifts[2] = [1.2, 0.0]
-    found = photo_shifts(*_views(shifts, split=(2, (-1.2, 0.0)), seed=5), texture_size=N)
+    found = photo_shifts(*_views(shifts, split={2: (-1.2, 0.0)}, seed=5), texture_size=N)
     assert found.spread[2] > 0.5
     assert not found.applied[2]
 
@@ -88,3 +88,24 @@ def test_shifted_camera_moves_the_projection_by_the_shift(scale):
     moved, _ = shifted_camera(cam, (0.7, -0.4), scale).project(pts)
     assert np.allclose(moved - xy, np.array([0.7, -0.4]) * scale)
     assert np.array_equal(cam.K[:2, 2], [80, 60])  # the given camera is not changed
+
+
+def test_a_photo_that_misses_the_mesh_is_left_alone():
+    photos, masks, uvs = _views(np.array([[0.0, 0.0], [0.7, 0.0], [0.0, 0.0], [0.0, 0.0]]), seed=7)
+    masks[2] = np.zeros_like(masks[2])
+    found = photo_shifts(photos, masks, uvs, texture_size=N)
+    assert not found.applied[2] and np.all(found.shift[2] == 0) and np.isinf(found.spread[2])
+    assert found.applied[1]
+
+
+def test_no_camera_moves_where_most_photos_disagree_with_themselves():
+    """Four photos of six misregistered differently on their two halves: the mesh is not the surface they show,
+    so even the photo that one shift would line up keeps its camera."""
+    shifts = np.array([[1.0, 0.0], [-0.8, 0.6], [0.0, -1.0], [0.7, 0.7], [0.9, -0.3], [0.0, 0.0]])
+    right = {0: (-0.8, 0.2), 1: (0.9, -0.6), 2: (0.2, 1.0), 3: (-0.9, -0.5)}
+    found = photo_shifts(*_views(shifts, split=right, seed=9), texture_size=N)
+    assert not found.mesh_fits
+    assert not found.applied.any() and np.all(found.shift == 0)
+    # The same photos whole: the mesh fits and the cameras that are off move.
+    found = photo_shifts(*_views(shifts, seed=9), texture_size=N)
+    assert found.mesh_fits and found.applied[:5].all()
