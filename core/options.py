@@ -264,7 +264,7 @@ SPEC = (
     Option(
         "align_photos",
         "bool",
-        False,
+        True,
         "Align photos",
         "Move each camera by the sub-pixel shift that lines its photo's fine detail up with the other photos' "
         "(photogrammetry cameras are often about a pixel off); the scene's cameras are not changed",

@@ -55,8 +55,10 @@ MAX_MISFIT = 0.95
 #: Shifts smaller than this (pixels) are left out: on photos whose cameras are right, the shifts measured reach
 #: 0.2 px, and moving the cameras by them made the albedo worse.
 MIN_SHIFT_PX = 0.25
-#: Shifts larger than this (pixels) are not a camera about a pixel off: not applied.
-MAX_SHIFT_PX = 3.0
+#: Shifts larger than this (pixels) are not applied: the search from zero on detail of a few pixels does not
+#: reach much further, and a larger shift found is a wrong match (measured: 2.05 px on a photo whose camera was
+#: right, where the cameras a pixel off measured 0.3-1.5 px).
+MAX_SHIFT_PX = 1.5
 #: Most pixels of a photo its shift is measured on (every k-th pixel of the mesh beyond).
 MAX_PIXELS = 30_000
 # Pixels kept around the mesh's box when a photo is cropped: more than the blur and the largest shift reach.
@@ -78,8 +80,6 @@ class Alignment:
         The shift found, applied or not.
     misfit : (m,) float64
         The detail left unexplained after the shift, as a fraction of the detail (NaN: not measured).
-    unshifted : (m,) float64
-        The same without the shift.
     spread : (m,) float64
         How far (pixels) the shift measured on a half of the photo lies from the whole photo's, at most (inf:
         not measured).
@@ -92,7 +92,6 @@ class Alignment:
     shift: np.ndarray
     measured: np.ndarray
     misfit: np.ndarray
-    unshifted: np.ndarray
     spread: np.ndarray
     applied: np.ndarray
     mesh_fits: bool = True
@@ -223,29 +222,27 @@ def _gauss_newton(view, target, rows, cols, start, iters=8):
 
 
 def _measure(view, target, valid, start, halves=False):
-    """``(shift, misfit, unshifted, spread)``, or None if the photo has too few pixels where the others reach.
+    """``(shift, misfit, spread)``, or None if the photo has too few pixels where the others reach.
 
-    ``misfit`` is the detail left unexplained at the shift, ``unshifted`` the same at no shift (NaN unless
-    ``halves``). With ``halves`` the shift is also measured again on each half of the pixels (left and right,
-    top and bottom): ``spread`` is the largest distance of those four from the whole photo's (0 without).
+    ``misfit`` is the detail left unexplained at the shift. With ``halves`` the shift is also measured again on
+    each half of the pixels (left and right, top and bottom): ``spread`` is the largest distance of those four
+    from the whole photo's (0 without).
     """
     keep = valid[view.rows, view.cols]
     if np.count_nonzero(keep) < MIN_PIXELS:
         return None
     rows, cols = view.rows[keep], view.cols[keep]
     t, misfit = _gauss_newton(view, target, rows, cols, start)
-    if not halves:
-        return t, misfit, np.nan, 0.0
-    _, unshifted = _gauss_newton(view, target, rows, cols, (0.0, 0.0), iters=0)
     spread = 0.0
-    for coord in (rows, cols):
-        below = coord < np.median(coord)
-        for half in (below, ~below):
-            if np.count_nonzero(half) < MIN_PIXELS:
-                return t, misfit, unshifted, np.inf
-            th, _ = _gauss_newton(view, target, rows[half], cols[half], t, iters=4)
-            spread = max(spread, float(np.hypot(*(th - t))))
-    return t, misfit, unshifted, spread
+    if halves:
+        for coord in (rows, cols):
+            below = coord < np.median(coord)
+            for half in (below, ~below):
+                if np.count_nonzero(half) < MIN_PIXELS:
+                    return t, misfit, np.inf
+                th, _ = _gauss_newton(view, target, rows[half], cols[half], t, iters=4)
+                spread = max(spread, float(np.hypot(*(th - t))))
+    return t, misfit, spread
 
 
 def _round(views, shift, size, threads, halves):
@@ -294,12 +291,11 @@ def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rou
     shift = np.zeros((m, 2))
     misfit = np.full(m, np.nan)
     spread = np.full(m, np.inf)
-    unshifted = np.full(m, np.nan)
     for k in range(rounds):
         found = _round(views, shift, size, threads, halves=k == rounds - 1)
         for i, f in enumerate(found):
             if f is not None:
-                shift[i], misfit[i], unshifted[i], spread[i] = f
+                shift[i], misfit[i], spread[i] = f
     size_px = np.hypot(shift[:, 0], shift[:, 1])
     explains = misfit <= MAX_MISFIT  # NaN (not measured) compares False
     agree = spread <= MAX_SPREAD_PX
@@ -311,7 +307,6 @@ def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rou
         shift=np.where(applied[:, None], shift, 0.0),
         measured=shift,
         misfit=misfit,
-        unshifted=unshifted,
         spread=spread,
         applied=applied,
         mesh_fits=bool(mesh_fits),
