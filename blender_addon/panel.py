@@ -99,6 +99,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         if s.cameras == "COLLECTION":
             col.prop(s, "camera_collection")
         col.prop(s, "images_dir")
+        col.prop(s, "align_photos")
 
         col = layout.column(heading="Solve")
         col.prop(s, "method")
@@ -113,7 +114,6 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         sub.prop(s, "lighting")
         sub.prop(s, "occlusion")
         sub.prop(s, "sun")
-        sub.prop(s, "align_photos")
         sub.prop(s, "mask_clipped")
         if s.method == "image":
             sub.prop(s, "mu")

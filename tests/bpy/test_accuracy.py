@@ -35,6 +35,14 @@ def make_fixtures():
     return mf
 
 
+def reduced_fixture(tmp_path_factory, name, resolution):
+    """The fixture ``name`` rendered at ``resolution`` with N_CAMS cameras, SAMPLES samples, a TEX^2 truth; its
+    folder."""
+    out = tmp_path_factory.mktemp(name)
+    make_fixtures().generate(name, str(out), resolution=resolution, n_cameras=N_CAMS, samples=SAMPLES, texture_size=TEX)
+    return os.path.join(str(out), name)
+
+
 @pytest.fixture(scope="module")
 def small_sky(tmp_path_factory):
     """lambert_sky at 160x120, 8 cameras, 16 samples, 128^2 truth, with per-view truth (~10 s of Cycles)."""
@@ -57,6 +65,12 @@ def run_fixture(fixture_dir, out_dir, **kw):
     with open(os.path.join(out_dir, "report.json")) as fh:
         report = json.load(fh)
     return rep, report, record, read_exr(os.path.join(fixture_dir, "albedo_gt.exr"))[0]
+
+
+def run_rmse(fixture_dir, out_dir, **kw):
+    """Run the pipeline on the fixture; (texture RMSE per channel, report.json, scene.json)."""
+    rep, report, record, gt = run_fixture(fixture_dir, out_dir, **kw)
+    return np.array(texture_rmse(rep.albedo_path, gt)[0]), report, record
 
 
 def score(fixture_dir, out_dir, **kw):

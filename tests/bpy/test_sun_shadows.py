@@ -7,7 +7,6 @@ The sun's shadows leave the albedo, and lighting.json and lighting.exr carry the
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -15,9 +14,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from conftest import needs_fixture_maker  # noqa: E402
-from test_accuracy import TEX, make_fixtures, run_fixture  # noqa: E402
+from test_accuracy import reduced_fixture, run_rmse  # noqa: E402
 
-from bench.accuracy import texture_rmse  # noqa: E402
 from blender_addon.core.io.envmap import equirect_directions  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
 
@@ -27,19 +25,12 @@ pytestmark = [pytest.mark.bpy, needs_fixture_maker]
 @pytest.fixture(scope="module")
 def small_sun(tmp_path_factory):
     """photo_sun at 240x180, 8 cameras, 16 samples, 128^2 truth."""
-    out = tmp_path_factory.mktemp("sun")
-    make_fixtures().generate("photo_sun", str(out), resolution=(240, 180), n_cameras=8, samples=16, texture_size=TEX)
-    return os.path.join(str(out), "photo_sun")
-
-
-def run(fixture_dir, out_dir, **kw):
-    rep, report, record, gt = run_fixture(fixture_dir, out_dir, **kw)
-    return np.array(texture_rmse(rep.albedo_path, gt)[0]), report, record
+    return reduced_fixture(tmp_path_factory, "photo_sun", (240, 180))
 
 
 def test_sun_shadows_leave_the_albedo(small_sun, tmp_path):
-    plain, _, _ = run(small_sun, tmp_path / "plain", sun=False)
-    ours, report, record = run(small_sun, tmp_path / "sun", sun=True)
+    plain, _, _ = run_rmse(small_sun, tmp_path / "plain", sun=False)
+    ours, report, record = run_rmse(small_sun, tmp_path / "sun", sun=True)
     # Measured (bpy 5.2): R / G / B 0.119 / 0.105 / 0.108 without, 0.086 / 0.076 / 0.068 with the sun (0.69x).
     assert ours.mean() < 0.85 * plain.mean(), (ours, plain)
 
