@@ -25,6 +25,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..parallel import thread_map
+from ..progress import check_cancel
 from .texels import pixel_matched_size, texel_index
 
 __all__ = [
@@ -260,7 +261,9 @@ def _round(views, shift, size, threads, halves):
     return thread_map(measure, range(len(views)), threads)
 
 
-def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rounds: int = 3, threads=None):
+def photo_shifts(
+    photos, masks, uvs, weights=None, texture_size: int = 1024, rounds: int = 3, threads=None, cancel=None
+):
     """Each photo's image shift against the others' texture (see the module docstring).
 
     Parameters
@@ -278,6 +281,8 @@ def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rou
         Rounds of measuring every photo against the others as they were shifted in the round before.
     threads : int or None
         Photos measured at once (None: every core).
+    cancel : callable() -> bool, optional
+        Checked before each round; when it returns True, :class:`core.errors.Cancelled` is raised.
 
     Returns
     -------
@@ -292,6 +297,7 @@ def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rou
     misfit = np.full(m, np.nan)
     spread = np.full(m, np.inf)
     for k in range(rounds):
+        check_cancel(cancel)
         found = _round(views, shift, size, threads, halves=k == rounds - 1)
         for i, f in enumerate(found):
             if f is not None:
@@ -313,15 +319,15 @@ def photo_shifts(photos, masks, uvs, weights=None, texture_size: int = 1024, rou
     )
 
 
-def align_views(inputs, bakes, texture_size: int = 1024, threads=None):
+def align_views(inputs, bakes, texture_size: int = 1024, threads=None, cancel=None):
     """The views with each camera moved by its photo's shift (:func:`photo_shifts`), and those views baked again.
 
     Parameters
     ----------
     inputs : core.scene.SceneInputs
     bakes : list of core.geometry.bake.ViewBake
-    texture_size, threads
-        As :func:`photo_shifts`.
+    texture_size, threads, cancel
+        As :func:`photo_shifts`; ``cancel`` is also checked before the views are baked again.
 
     Returns
     -------
@@ -338,6 +344,7 @@ def align_views(inputs, bakes, texture_size: int = 1024, threads=None):
         [b.view_weight for b in bakes],
         texture_size,
         threads=threads,
+        cancel=cancel,
     )
     moved = np.flatnonzero(found.applied)
     if moved.size == 0:
@@ -349,7 +356,7 @@ def align_views(inputs, bakes, texture_size: int = 1024, threads=None):
         if full is not None:
             full = replace(full, camera=shifted_camera(full.camera, found.shift[i], full.camera.width / v.camera.width))
         views[i] = replace(v, camera=shifted_camera(v.camera, found.shift[i]), full=full)
-    again = bake_views(None, replace(inputs, views=[views[i] for i in moved]), threads=threads)
+    again = bake_views(None, replace(inputs, views=[views[i] for i in moved]), cancel=cancel, threads=threads)
     for i, b in zip(moved, again):
         bakes[i] = b
     return replace(inputs, views=views), bakes, found
