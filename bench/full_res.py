@@ -54,7 +54,7 @@ SAMPLES = 4
 BASE_TRIANGLES = 16384
 #: Below this much available memory on the machine the run is stopped (other jobs share it).
 MIN_AVAILABLE = 3 * 2**30
-STAGES = ("load", "gather", "bake", "solve", "fuse", "detail", "write")
+STAGES = ("load", "gather", "bake", "align", "solve", "fuse", "detail", "write")
 _STAGE = re.compile(r"^delight:\s+[\d.]+% (\w+)")
 
 

@@ -34,7 +34,7 @@ N_CAMERAS = 13
 SAMPLES = 4
 TEXTURE = 2048
 TARGET_S = 30.0
-STAGES = ("gather", "bake", "solve", "fuse", "write")
+STAGES = ("gather", "bake", "align", "solve", "fuse", "write")
 
 
 def render_scene(work):

@@ -141,6 +141,10 @@ class _View:
         self.inner = ndimage.binary_erosion(mask, iterations=3)
         self.inner_rows, self.inner_cols = np.nonzero(self.inner)
         self.inner_texels = texel_index(uv[self.inner], size)
+        # Where each inner pixel's texel is among this photo's own (to take its own share out of the sums).
+        pos = np.minimum(np.searchsorted(self.texels, self.inner_texels), max(self.texels.size - 1, 0))
+        self.inner_own = np.flatnonzero(self.texels[pos] == self.inner_texels) if self.texels.size else pos[:0]
+        self.inner_own_texel = pos[self.inner_own]
         step = max(-(-self.inner_rows.size // MAX_PIXELS), 1)
         self.rows, self.cols = self.inner_rows[::step], self.inner_cols[::step]
 
@@ -157,10 +161,8 @@ def _others(view, own_sums, total_s, total_w):
     t = view.inner_texels
     s = np.where(t >= 0, total_s[np.maximum(t, 0)], 0.0)
     w = np.where(t >= 0, total_w[np.maximum(t, 0)], 0.0)
-    pos = np.minimum(np.searchsorted(view.texels, t), view.texels.size - 1)
-    mine = view.texels[pos] == t
-    s[mine] -= own_sums[pos[mine]]
-    w[mine] -= view.weight_sum[pos[mine]]
+    s[view.inner_own] -= own_sums[view.inner_own_texel]
+    w[view.inner_own] -= view.weight_sum[view.inner_own_texel]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(w > 1e-9, s / w, np.nan)
 
