@@ -26,6 +26,7 @@ from scipy import ndimage
 
 from ..parallel import thread_map
 from ..progress import check_cancel
+from .bilinear import clamped_corners, interpolate
 from .texels import pixel_matched_size, texel_index
 
 __all__ = [
@@ -74,11 +75,8 @@ class Alignment:
 
     Attributes
     ----------
-    shift : (m, 2) float64
-        ``(dx, dy)`` in pixels: the photo shows at ``x + shift`` what the bake puts at ``x``. Zero where not
-        ``applied``.
     measured : (m, 2) float64
-        The shift found, applied or not.
+        ``(dx, dy)`` in pixels: the photo shows at ``x + measured`` what the bake puts at ``x``; applied or not.
     misfit : (m,) float64
         The detail left unexplained after the shift, as a fraction of the detail (NaN: not measured).
     spread : (m,) float64
@@ -90,12 +88,16 @@ class Alignment:
         they show, and no camera is moved.
     """
 
-    shift: np.ndarray
     measured: np.ndarray
     misfit: np.ndarray
     spread: np.ndarray
     applied: np.ndarray
     mesh_fits: bool = True
+
+    @property
+    def shift(self) -> np.ndarray:
+        """``(m, 2)``: the shift applied to each photo's camera, zero where not ``applied``."""
+        return np.where(self.applied[:, None], self.measured, 0.0)
 
 
 def shifted_camera(camera, shift, scale: float = 1.0):
@@ -177,20 +179,6 @@ def _target_detail(view, others):
     return img - _blur(img, valid, BLUR_PX), valid
 
 
-def _bilinear(shape, rows, cols, t):
-    """Flat indices ``(N, 4)`` and weights of the 4 pixels around each ``(row + t[1], col + t[0])``, clamped to
-    the image: sampling three images at the same points this way is several times faster than map_coordinates."""
-    h, w = shape
-    y = np.clip(rows + t[1], 0, h - 1.000001)
-    x = np.clip(cols + t[0], 0, w - 1.000001)
-    r0, c0 = y.astype(np.intp), x.astype(np.intp)
-    fy, fx = y - r0, x - c0
-    i = r0 * w + c0
-    idx = np.stack([i, i + 1, i + w, i + w + 1], axis=1)
-    wts = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=1)
-    return idx, wts
-
-
 def _dot(a, b) -> float:
     """``a . b`` of two vectors without BLAS, whose threads cost more than the product at this size."""
     return float(np.einsum("i,i->", a, b))
@@ -201,17 +189,22 @@ def _gauss_newton(view, target, rows, cols, start, iters=8):
     ref = target[rows, cols]
     ref2 = max(_dot(ref, ref), 1e-30)
     t = np.array(start, np.float64)
+    h, w = view.detail.shape
     images = (view.detail.ravel(), view.gx.ravel(), view.gy.ravel())
 
+    def corners():
+        # Clamped like map_coordinates' "nearest"; the corners found once for the three images sampled there.
+        return clamped_corners(np.clip(cols + t[0], 0, w - 1), np.clip(rows + t[1], 0, h - 1), w, h)
+
     def at(k):
-        return np.einsum("ij,ij->i", images[k][idx], wts)
+        return interpolate(images[k], idx, wts)
 
     def residual():
         p = at(0)
         return p - (_dot(p, ref) / ref2) * ref, p
 
     for _ in range(iters):
-        idx, wts = _bilinear(view.detail.shape, rows, cols, t)
+        idx, wts = corners()
         r, _ = residual()
         gx, gy = at(1), at(2)
         jtj = np.array([[_dot(gx, gx), _dot(gx, gy)], [_dot(gx, gy), _dot(gy, gy)]])
@@ -219,7 +212,7 @@ def _gauss_newton(view, target, rows, cols, start, iters=8):
         t += np.clip(step, -1.0, 1.0)
         if np.abs(step).max() < 1e-3 or np.abs(t).max() > 2 * MAX_SHIFT_PX:
             break
-    idx, wts = _bilinear(view.detail.shape, rows, cols, t)
+    idx, wts = corners()
     r, p = residual()
     return t, _dot(r, r) / max(_dot(p, p), 1e-30)
 
@@ -312,7 +305,6 @@ def photo_shifts(
     mesh_fits = np.count_nonzero(agree) >= MIN_AGREEING * np.count_nonzero(np.isfinite(misfit))
     applied = mesh_fits & explains & agree & (size_px >= MIN_SHIFT_PX) & (size_px <= MAX_SHIFT_PX)
     return Alignment(
-        shift=np.where(applied[:, None], shift, 0.0),
         measured=shift,
         misfit=misfit,
         spread=spread,
@@ -351,13 +343,13 @@ def align_views(inputs, bakes, texture_size: int = 1024, threads=None, cancel=No
     moved = np.flatnonzero(found.applied)
     if moved.size == 0:
         return inputs, list(bakes), found
-    views, bakes = list(inputs.views), list(bakes)
+    views, bakes, shift = list(inputs.views), list(bakes), found.shift
     for i in moved:
         v = views[i]
         full = v.full
         if full is not None:
-            full = replace(full, camera=shifted_camera(full.camera, found.shift[i], full.camera.width / v.camera.width))
-        views[i] = replace(v, camera=shifted_camera(v.camera, found.shift[i]), full=full)
+            full = replace(full, camera=shifted_camera(full.camera, shift[i], full.camera.width / v.camera.width))
+        views[i] = replace(v, camera=shifted_camera(v.camera, shift[i]), full=full)
     again = bake_views(None, replace(inputs, views=[views[i] for i in moved]), cancel=cancel, threads=threads)
     for i, b in zip(moved, again):
         bakes[i] = b
