@@ -109,3 +109,15 @@ def test_no_camera_moves_where_most_photos_disagree_with_themselves():
     # The same photos whole: the mesh fits and the cameras that are off move.
     found = photo_shifts(*_views(shifts, seed=9), texture_size=N)
     assert found.mesh_fits and found.applied[:5].all()
+
+
+def test_pixels_that_are_not_numbers_are_left_out():
+    true = np.array([[0.0, 0.0], [0.8, -0.5], [0.0, 0.0], [-0.6, 0.9], [0.0, 0.0], [1.1, 0.3], [0.0, 0.0]])
+    photos, masks, uvs = _views(true)
+    photos[3][40:50, 60:70] = np.nan
+    photos[5][0, 0] = np.inf
+    found = photo_shifts(photos, masks, uvs, texture_size=N)
+    moved = np.hypot(*true.T) > 0
+    err = (found.measured - found.measured[~moved].mean(axis=0)) - true
+    assert np.abs(err).max() < 0.15, err
+    assert np.array_equal(found.applied, moved)

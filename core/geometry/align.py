@@ -128,6 +128,11 @@ class _View:
         photo, mask, uv = photo[box], mask[box], uv[box]
         weight = None if weight is None else weight[box]
         self.grey = np.asarray(photo, np.float64).mean(axis=-1)
+        # A pixel that is not a number (a researcher's array; the add-on refuses such photos) is off the mesh here.
+        bad = ~np.isfinite(self.grey)
+        if bad.any():
+            mask = mask & ~bad
+            self.grey[bad] = 0.0
         self.detail = self.grey - _blur(self.grey, ndimage.binary_erosion(mask), BLUR_PX)
         self.gy, self.gx = np.gradient(self.detail)
         self.mask_rows, self.mask_cols = np.nonzero(mask)
