@@ -3,7 +3,7 @@
 Run with the venv's Python (Blender as the ``bpy`` module)::
 
     .venv/bin/python blend_fixtures/make_fixtures.py [--out DIR] [--only NAME ...]
-        [--resolution W H] [--cameras N] [--samples S] [--texture-size N]
+        [--resolution W H] [--cameras N] [--samples S] [--texture-size N] [--view-gt] [--shading-views]
 
 Each scene ``<name>`` gives, in ``<out>/<name>/``:
 
@@ -1205,13 +1205,12 @@ PHOTO_EXT = {"EXR": ".exr", "PNG": ".png", "JPEG": ".jpg"}
 VIEW_GT_AOV = "albedo"
 
 
-def save_view_gt(scene, path):
-    """Write the last render's albedo AOV as RGBA half EXR (RGB premultiplied by A = the object's coverage)."""
+def _render_layers(scene, tmp):
+    """Every pass of the last render, ``{"ViewLayer.<pass>.<channel>": (H, W) float32}``, row 0 at the top."""
     import OpenEXR
 
     ims = scene.render.image_settings
     saved = (ims.media_type, ims.file_format, ims.color_mode, ims.color_depth, ims.exr_codec)
-    tmp = path + ".multilayer.exr"
     try:
         ims.media_type = "MULTI_LAYER_IMAGE"
         ims.color_depth = "32"
@@ -1220,13 +1219,40 @@ def save_view_gt(scene, path):
     finally:
         ims.media_type = saved[0]
         ims.file_format, ims.color_mode, ims.color_depth, ims.exr_codec = saved[1:]
+    out = {}
     with OpenEXR.File(tmp, separate_channels=True) as f:
-        part = [p for p in f.parts if p.name().endswith("." + VIEW_GT_AOV)][0]
-        pre = part.name()
-        rgba = np.stack([np.asarray(part.channels[f"{pre}.{c}"].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
+        for part in f.parts:
+            for key, ch in part.channels.items():
+                out[key] = np.asarray(ch.pixels, dtype=np.float32)
     os.remove(tmp)
+    return out
+
+
+def _layer_rgb(layers, name, channels="RGB"):
+    key = [k for k in layers if k.endswith("." + name + ".R")][0][:-2]
+    return np.stack([layers[f"{key}.{c}"] for c in channels], axis=-1)
+
+
+def save_view_gt(scene, path):
+    """Write the last render's albedo AOV as RGBA half EXR (RGB premultiplied by A = the object's coverage)."""
+    rgba = _layer_rgb(_render_layers(scene, path + ".multilayer.exr"), VIEW_GT_AOV, "RGBA")
     write_exr_rgba(path, rgba)  # (a fresh file: no metadata)
     return rgba
+
+
+#: Cycles passes that give each photo's diffuse shading (``shading_views``).
+SHADING_PASSES = ("diffuse_direct", "diffuse_indirect", "diffuse_color")
+
+
+def save_shading_view(scene, path):
+    """Write the last render's diffuse shading, diffuse colour and combined image (linear RGB) as .npz."""
+    layers = _render_layers(scene, path + ".multilayer.exr")
+    np.savez_compressed(
+        path,
+        diffuse_shading=_layer_rgb(layers, "Diffuse Direct") + _layer_rgb(layers, "Diffuse Indirect"),
+        diffuse_colour=_layer_rgb(layers, "Diffuse Color"),
+        combined=_layer_rgb(layers, "Combined"),
+    )
 
 
 def configure_render(scene, spec):
@@ -1258,6 +1284,8 @@ def configure_render(scene, spec):
     scene.render.resolution_percentage = 100
     scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
     scene.render.film_transparent = spec.get("film_transparent", False)
+    for p in SHADING_PASSES:
+        setattr(scene.view_layers[0], "use_pass_" + p, bool(spec.get("shading_views")))
     scene.render.dither_intensity = rc["dither_intensity"]
     scene.render.use_persistent_data = True
     # No date/time/host metadata in the files, so that a re-run gives byte-identical photos.
@@ -1439,15 +1467,30 @@ def resolved_spec(name, **overrides):
 
 
 def generate(
-    name, out_dir, resolution=None, n_cameras=None, samples=None, texture_size=None, view_gt=None, reuse_base=True
+    name,
+    out_dir,
+    resolution=None,
+    n_cameras=None,
+    samples=None,
+    texture_size=None,
+    view_gt=None,
+    reuse_base=True,
+    shading_views=None,
 ):
     """Render scene ``name`` into ``out_dir/name``; return its scene.json dictionary.
 
     The keyword arguments override the scene's defaults in SCENES (None keeps them). ``view_gt`` also writes
-    per-photo ground-truth albedo images in ``gt_views/``.
+    per-photo ground-truth albedo images in ``gt_views/``; ``shading_views`` each photo's diffuse shading,
+    diffuse colour and combined image from Cycles' passes in ``shading_views/`` (for bench/shading_ceiling.py).
     """
     spec = resolved_spec(
-        name, resolution=resolution, n_cameras=n_cameras, samples=samples, texture_size=texture_size, view_gt=view_gt
+        name,
+        resolution=resolution,
+        n_cameras=n_cameras,
+        samples=samples,
+        texture_size=texture_size,
+        view_gt=view_gt,
+        shading_views=shading_views,
     )
     if "base" in spec:
         return _generate_derived(name, spec, out_dir, reuse_base)
@@ -1502,6 +1545,8 @@ def generate(
         aov = scene.view_layers[0].aovs.add()
         aov.name, aov.type = VIEW_GT_AOV, "COLOR"
         os.makedirs(os.path.join(scene_dir, "gt_views"))
+    if spec.get("shading_views"):
+        os.makedirs(os.path.join(scene_dir, "shading_views"))
 
     # Lighting.
     L = spec["lighting"]
@@ -1580,6 +1625,8 @@ def generate(
         log(f"{name}: {cname} rendered in {render_times[-1]:.1f} s")
         if view_gt:
             save_view_gt(scene, os.path.join(scene_dir, "gt_views", cname + ".exr"))
+        if spec.get("shading_views"):
+            save_shading_view(scene, os.path.join(scene_dir, "shading_views", cname + ".npz"))
 
         kb, kc = camera_intrinsics(c["lens_mm"], w, h)
         extra = {}
@@ -1651,7 +1698,11 @@ def generate(
         description=_DESCRIPTIONS[name],
         blender_version=bpy.app.version_string,
         files=dict(
-            blend="scene.blend", albedo_gt="albedo_gt.exr", photos="photos/", gt_views="gt_views/" if view_gt else None
+            blend="scene.blend",
+            albedo_gt="albedo_gt.exr",
+            photos="photos/",
+            gt_views="gt_views/" if view_gt else None,
+            shading_views="shading_views/" if spec.get("shading_views") else None,
         ),
         mesh=mesh_record,
         albedo_gt=dict(
@@ -1726,6 +1777,7 @@ def _generate_derived(name, spec, out_dir, reuse_base):
             and len(b["cameras"]) == want["n_cameras"]
             and b["render"]["samples"] == want["samples"]
             and b["albedo_gt"]["size"][0] == want["texture_size"]
+            and (bool(b["files"].get("shading_views")) or not spec.get("shading_views"))
         )
     if not ok:
         generate(
@@ -1735,6 +1787,7 @@ def _generate_derived(name, spec, out_dir, reuse_base):
             n_cameras=want["n_cameras"],
             samples=want["samples"],
             texture_size=want["texture_size"],
+            shading_views=spec.get("shading_views"),
         )
     with open(base_json) as f:
         b = json.load(f)
@@ -1791,6 +1844,7 @@ def _generate_derived(name, spec, out_dir, reuse_base):
             blend="scene.blend",
             albedo_gt="albedo_gt.exr (a copy of the base scene's)",
             photos=f"../{base}/photos/ (shared with the base scene, referenced by relative path)",
+            shading_views=f"../{base}/shading_views/" if b["files"].get("shading_views") else None,
         ),
         mesh=dict(
             _mesh_record(coarse, mesh_info, "coarse"),
@@ -1900,6 +1954,12 @@ def main(argv=None):
         default=None,
         help="also write per-photo ground-truth albedo images (default: lambert_sky only)",
     )
+    p.add_argument(
+        "--shading-views",
+        action="store_true",
+        default=None,
+        help="also write each photo's diffuse shading from Cycles' passes (shading_views/; bench/shading_ceiling.py)",
+    )
     a = p.parse_args(argv)
     names = a.only or list(SCENES)
     for name in names:
@@ -1912,6 +1972,7 @@ def main(argv=None):
             texture_size=a.texture_size,
             view_gt=a.view_gt,
             reuse_base=True,
+            shading_views=a.shading_views,
         )
 
 

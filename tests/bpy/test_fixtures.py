@@ -41,7 +41,9 @@ def mf():
 @pytest.fixture(scope="module")
 def small_scene(mf, tmp_path_factory):
     out = tmp_path_factory.mktemp("fixtures")
-    record = mf.generate("lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=8, texture_size=TEX)
+    record = mf.generate(
+        "lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=8, texture_size=TEX, shading_views=True
+    )
     bpy.ops.wm.read_homefile(use_empty=True)
     return os.path.join(str(out), "lambert_sky"), record
 
@@ -126,6 +128,26 @@ def test_photos_are_plausible(small_scene, mf):
         assert 0.03 < rgb.mean() < 1.0, f"{cam['name']}: mean radiance {rgb.mean():.3f}"
         assert (rgb.max(axis=1) <= 0.005).mean() < 0.05  # not black
         assert (rgb.min(axis=1) >= 1.0).mean() < 0.05  # not burnt out
+
+
+@needs_fixture_maker
+def test_shading_views_are_the_photo_split_into_albedo_and_shading(small_scene, mf):
+    """shading_views/ (bench/shading_ceiling.py): from the photo's own render; albedo x shading = the photo."""
+    scene_dir, record = small_scene
+    assert record["files"]["shading_views"] == "shading_views/"
+    for cam in record["cameras"]:
+        photo = mf.read_exr(os.path.join(scene_dir, cam["photo"]))
+        albedo = mf.read_exr(os.path.join(scene_dir, cam["albedo_view"]))
+        with np.load(os.path.join(scene_dir, "shading_views", cam["name"] + ".npz")) as z:
+            s, col, comb = z["diffuse_shading"], z["diffuse_colour"], z["combined"]
+        obj = photo[..., 3] > 0.999
+        assert obj.mean() > 0.05
+        # The photo is the combined pass in half floats; the Diffuse Color pass is the albedo AOV.
+        np.testing.assert_allclose(comb[obj], photo[obj][:, :3], rtol=2e-3, atol=1e-4)
+        np.testing.assert_allclose(col[obj], albedo[obj][:, :3], rtol=2e-3, atol=1e-4)
+        # Lambertian: the photo is albedo x diffuse shading, and the shading is lit, not flat.
+        np.testing.assert_allclose(col[obj] * s[obj], comb[obj], rtol=1e-3, atol=1e-4)
+        assert np.ptp(s[obj].mean(axis=1)) > 0.1
 
 
 @needs_fixture_maker

@@ -1,0 +1,163 @@
+"""What any delighting could reach on each fixture: its photos divided by Cycles' own shading.
+
+Run by hand (not a test)::
+
+    .venv/bin/python bench/shading_ceiling.py [--only bowl_checker rock_photo] [--json bench/shading_ceiling.json]
+
+Each fixture of ``blend_fixtures/`` is rendered again, with Cycles' diffuse passes saved per photo
+(``make_fixtures.generate(..., shading_views=True)``), into ``build/bench/shading/``; the renders are kept while
+``make_fixtures.py`` and Blender's version are unchanged. Then, per fixture at its truth's size (RMSE as in
+``bench/accuracy_quick.py``, mean over R, G, B):
+
+* ``project``: the re-rendered photos fused onto the texture (``--method project``);
+* ``shading_known``: the albedo with the shading known exactly. Each photo keeps its own error (noise, 8 bits,
+  JPEG, clipping, per-photo gains undone) but loses what is not its diffuse term (the background mixed in at
+  the silhouette, the specular); per texel the least-squares albedo ``sum w S I / sum w S^2`` over its
+  observations, S Cycles' diffuse shading. No delighting can do much better from these photos on this mesh;
+  ``project / shading_known`` bounds the ratio issue 13 asks for;
+* ``albedo_seen``: Cycles' Diffuse Color pass (the albedo each pixel saw) fused by ``project``: what the
+  photos' resolution, the cameras and the user's mesh allow with nothing else wrong.
+
+With Blender other than the fixtures' (5.0.1) the re-rendered photos differ from the committed ones by render
+noise; ``project`` here is then not exactly the accuracy table's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from bench.accuracy import fixtures  # noqa: E402
+from bench.accuracy_quick import _scored, load_case, problem_of, run_project, truth  # noqa: E402
+from bench.headless import ROOT, commit, machine  # noqa: E402
+
+RENDERS = os.path.join(ROOT, "build", "bench", "shading")
+MAKE_FIXTURES = os.path.join(ROOT, "blend_fixtures", "make_fixtures.py")
+
+
+def _stamp():
+    import bpy
+
+    with open(MAKE_FIXTURES, "rb") as fh:
+        return f"{hashlib.sha1(fh.read()).hexdigest()[:16]} {bpy.app.version_string}"
+
+
+def rendered(name):
+    """The fixture's folder rendered with its shading views (rendered now unless kept from before)."""
+    import bpy  # noqa: F401  (before make_fixtures, whose bmesh comes with it)
+
+    sys.path.insert(0, os.path.dirname(MAKE_FIXTURES))
+    import make_fixtures
+
+    stamp_path = os.path.join(RENDERS, name, "stamp.txt")
+    stamp = _stamp()
+    if os.path.exists(stamp_path) and open(stamp_path).read() == stamp:
+        return os.path.join(RENDERS, name)
+    base = make_fixtures.SCENES[name].get("base")
+    if base and not (os.path.exists(os.path.join(RENDERS, base, "stamp.txt"))):
+        rendered(base)
+    make_fixtures.generate(name, RENDERS, shading_views=True, reuse_base=True)
+    with open(stamp_path, "w") as fh:
+        fh.write(stamp)
+    return os.path.join(RENDERS, name)
+
+
+def _shading_views(folder, record):
+    rel = record["files"].get("shading_views") or "shading_views/"
+    return os.path.normpath(os.path.join(folder, rel))
+
+
+def _with_photos(inputs, photos):
+    import dataclasses
+
+    return dataclasses.replace(inputs, views=[dataclasses.replace(v, photo=p) for v, p in zip(inputs.views, photos)])
+
+
+def least_squares_albedo(inputs, bakes, photos, shadings, size):
+    """Per texel ``sum w S I / sum w S^2`` over its observations, per channel; NaN where unseen."""
+    import dataclasses
+
+    from core.solve.discretization import texture_domain
+    from core.solve.lighting import shading
+
+    # The shading as a transfer: channel c's shading in column c, picked by a lighting of unit vectors.
+    transfer = []
+    for s, b in zip(shadings, bakes):
+        t = np.zeros((int(b.mask.sum()), 9), np.float32)
+        t[:, :3] = s[b.mask]
+        transfer.append(t)
+    problem = dataclasses.replace(problem_of(_with_photos(inputs, photos), bakes, size), transfer=transfer)
+    d = texture_domain(problem)
+    sigma = np.zeros((len(bakes), 9, 3))
+    sigma[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    w = d.obs_weight.astype(np.float64)
+    out = np.full((size * size, 3), np.nan, np.float32)
+    for c in range(3):
+        a = d.from_pixels(shading(d, sigma[:, :, c], np.float64))
+        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
+        den = d.scatter(w * a * a)
+        out[d.texel_index, c] = np.where(den > 0, num / np.maximum(den, 1e-30), np.nan)
+    return out.reshape(size, size, 3)
+
+
+def evaluate(name):
+    from core.evaluate.metrics import scaled_rmse
+
+    folder = rendered(name)
+    record, inputs, bakes = load_case(name, folder)
+    size = record["albedo_gt"]["size"][0]
+    gt, inside = truth(folder, record, size)
+    views = _shading_views(folder, record)
+    cams = {c["name"]: c for c in record["cameras"]}
+    clean, shadings, seen_albedo = [], [], []
+    for v in inputs.views:
+        with np.load(os.path.join(views, v.name + ".npz")) as z:
+            s, col, comb = z["diffuse_shading"], z["diffuse_colour"], z["combined"]
+        if s.shape != v.photo.shape:
+            raise SystemExit(f"error: {name} {v.name}: shading {s.shape} against photo {v.photo.shape}")
+        gain = np.asarray(cams[v.name].get("capture", {}).get("gain_rgb", [1.0, 1.0, 1.0]), np.float32)
+        # The photo's own error on its diffuse term: what is not diffuse (background, specular) taken out.
+        clean.append((v.photo / gain - (comb - col * s)).astype(np.float32))
+        shadings.append(s)
+        seen_albedo.append(col.astype(np.float32))
+    row = {"fixture": name, "texture_size": size}
+    row["project"] = _scored(run_project(inputs, bakes, size), gt, inside)
+    known = least_squares_albedo(inputs, bakes, clean, shadings, size)
+    row["shading_known"] = scaled_rmse(known, gt, np.isfinite(known[..., 0]) & inside).tolist()
+    row["albedo_seen"] = _scored(run_project(_with_photos(inputs, seen_albedo), bakes, size), gt, inside)
+    return row
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--fixtures", default=os.path.join(ROOT, "blend_fixtures"))
+    p.add_argument("--only", nargs="*", help="fixture names (default: all)")
+    p.add_argument("--json", help="write the rows here")
+    a = p.parse_args(argv)
+    rows = []
+    started = datetime.datetime.now().isoformat(timespec="seconds")
+    for name, _ in fixtures(a.fixtures, a.only):
+        row = evaluate(name)
+        rows.append(row)
+        pr, sk, al = (float(np.mean(row[k])) for k in ("project", "shading_known", "albedo_seen"))
+        print(
+            f"{name:<20} project {pr:.4f}  shading known {sk:.4f} (x{pr / sk:.2f})  albedo seen {al:.4f} "
+            f"(x{pr / al:.2f})",
+            flush=True,
+        )
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(dict(started=started, commit=commit(), machine=machine(), rows=rows), fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
