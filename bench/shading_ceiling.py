@@ -12,7 +12,7 @@ Each fixture of ``blend_fixtures/`` is rendered again, with Cycles' diffuse pass
 * ``project``: the re-rendered photos fused onto the texture (``--method project``);
 * ``shading_known``: the albedo with the shading known exactly. Each photo keeps its own error (noise, 8 bits,
   JPEG, clipping, per-photo gains undone) but loses what is not its diffuse term (the background mixed in at
-  the silhouette, the specular); per texel the least-squares albedo ``sum w S I / sum w S^2`` over its
+  the silhouette, the specular; silhouette pixels that a bright background clipped are left out); per texel the least-squares albedo ``sum w S I / sum w S^2`` over its
   observations, S Cycles' diffuse shading. No delighting can do much better from these photos on this mesh;
   ``project / shading_known`` bounds the ratio issue 13 asks for;
 * ``albedo_seen``: Cycles' Diffuse Color pass (the albedo each pixel saw) fused by ``project``: what the
@@ -42,6 +42,7 @@ from bench.headless import ROOT, commit, machine  # noqa: E402
 
 RENDERS = os.path.join(ROOT, "build", "bench", "shading")
 MAKE_FIXTURES = os.path.join(ROOT, "blend_fixtures", "make_fixtures.py")
+CLIPPED = 0.999  # an 8-bit photo's linear value at code 255 is 1
 
 
 def _stamp():
@@ -118,6 +119,7 @@ def evaluate(name):
     gt, inside = truth(folder, record, size)
     views = _shading_views(folder, record)
     cams = {c["name"]: c for c in record["cameras"]}
+    eight_bit = record["photo"]["format"] in ("PNG", "JPEG")
     clean, shadings, seen_albedo = [], [], []
     for v in inputs.views:
         with np.load(os.path.join(views, v.name + ".npz")) as z:
@@ -126,7 +128,13 @@ def evaluate(name):
             raise SystemExit(f"error: {name} {v.name}: shading {s.shape} against photo {v.photo.shape}")
         gain = np.asarray(cams[v.name].get("capture", {}).get("gain_rgb", [1.0, 1.0, 1.0]), np.float32)
         # The photo's own error on its diffuse term: what is not diffuse (background, specular) taken out.
-        clean.append((v.photo / gain - (comb - col * s)).astype(np.float32))
+        photo = v.photo / gain
+        other = comb - col * s
+        clean.append((photo - other).astype(np.float32))
+        if eight_bit:
+            # A silhouette pixel clipped by a bright background has lost the object's share: left out.
+            lost = (v.photo.max(axis=-1) >= CLIPPED) & (other.max(axis=-1) > 0.01)
+            s = np.where(lost[..., None], 0.0, s)
         shadings.append(s)
         seen_albedo.append(col.astype(np.float32))
     row = {"fixture": name, "texture_size": size}
