@@ -10,11 +10,10 @@ Each fixture of ``blend_fixtures/`` is rendered again, with Cycles' diffuse pass
 ``bench/accuracy_quick.py``, mean over R, G, B):
 
 * ``project``: the re-rendered photos fused onto the texture (``--method project``);
-* ``shading_known``: the albedo with the shading known exactly. Each photo keeps its own error (noise, 8 bits,
-  JPEG, clipping, per-photo gains undone) but loses what is not its diffuse term (the background mixed in at
-  the silhouette, the specular; silhouette pixels that a bright background clipped are left out); per texel the least-squares albedo ``sum w S I / sum w S^2`` over its
-  observations, S Cycles' diffuse shading. No delighting can do much better from these photos on this mesh;
-  ``project / shading_known`` bounds the ratio issue 13 asks for;
+* ``shading_known``: the albedo with the shading known exactly (:func:`shading_views`): each photo with its
+  own error but only its diffuse term, divided by Cycles' diffuse shading S, fused per texel by least squares
+  (``sum w S I / sum w S^2`` over its observations). No delighting can do much better from these photos on
+  this mesh; ``project / shading_known`` bounds the ratio issue 13 asks for;
 * ``albedo_seen``: Cycles' Diffuse Color pass (the albedo each pixel saw) fused by ``project``: what the
   photos' resolution, the cameras and the user's mesh allow with nothing else wrong.
 
@@ -110,13 +109,14 @@ def least_squares_albedo(inputs, bakes, photos, shadings, size):
     return out.reshape(size, size, 3)
 
 
-def evaluate(name):
-    from core.evaluate.metrics import scaled_rmse
+def shading_views(folder, record, inputs):
+    """Per photo of ``inputs``: the photo on its diffuse term alone, Cycles' diffuse shading, the albedo seen.
 
-    folder = rendered(name)
-    record, inputs, bakes = load_case(name, folder)
-    size = record["albedo_gt"]["size"][0]
-    gt, inside = truth(folder, record, size)
+    The first keeps the photo's own error (noise, 8 bits, JPEG, clipping; its gains undone) and drops what
+    is not diffuse (the background mixed in at the silhouette, the specular). A silhouette pixel of an 8-bit
+    photo that a bright background clipped has lost the object's share: its shading is 0, so it counts for
+    nothing in :func:`least_squares_albedo`.
+    """
     views = _shading_views(folder, record)
     cams = {c["name"]: c for c in record["cameras"]}
     eight_bit = record["photo"]["format"] in ("PNG", "JPEG")
@@ -125,18 +125,26 @@ def evaluate(name):
         with np.load(os.path.join(views, v.name + ".npz")) as z:
             s, col, comb = z["diffuse_shading"], z["diffuse_colour"], z["combined"]
         if s.shape != v.photo.shape:
-            raise SystemExit(f"error: {name} {v.name}: shading {s.shape} against photo {v.photo.shape}")
+            raise SystemExit(f"error: {v.name}: shading {s.shape} against photo {v.photo.shape}")
         gain = np.asarray(cams[v.name].get("capture", {}).get("gain_rgb", [1.0, 1.0, 1.0]), np.float32)
-        # The photo's own error on its diffuse term: what is not diffuse (background, specular) taken out.
-        photo = v.photo / gain
         other = comb - col * s
-        clean.append((photo - other).astype(np.float32))
+        clean.append((v.photo / gain - other).astype(np.float32))
         if eight_bit:
-            # A silhouette pixel clipped by a bright background has lost the object's share: left out.
             lost = (v.photo.max(axis=-1) >= CLIPPED) & (other.max(axis=-1) > 0.01)
             s = np.where(lost[..., None], 0.0, s)
         shadings.append(s)
         seen_albedo.append(col.astype(np.float32))
+    return clean, shadings, seen_albedo
+
+
+def evaluate(name):
+    from core.evaluate.metrics import scaled_rmse
+
+    folder = rendered(name)
+    record, inputs, bakes = load_case(name, folder)
+    size = record["albedo_gt"]["size"][0]
+    gt, inside = truth(folder, record, size)
+    clean, shadings, seen_albedo = shading_views(folder, record, inputs)
     row = {"fixture": name, "texture_size": size}
     row["project"] = _scored(run_project(inputs, bakes, size), gt, inside)
     known = least_squares_albedo(inputs, bakes, clean, shadings, size)
