@@ -18,8 +18,11 @@ bpy = pytest.importorskip("bpy")
 from conftest import ROOT, needs_fixture_maker  # noqa: E402
 
 from bench.accuracy import texture_rmse, views_rmse  # noqa: E402
+from bench.accuracy_quick import _scored, run_project, truth  # noqa: E402
+from bench.shading_ceiling import least_squares_albedo, shading_views  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
+from core.evaluate.metrics import scaled_rmse  # noqa: E402
 
 pytestmark = [pytest.mark.bpy, needs_fixture_maker]
 
@@ -45,10 +48,18 @@ def reduced_fixture(tmp_path_factory, name, resolution):
 
 @pytest.fixture(scope="module")
 def small_sky(tmp_path_factory):
-    """lambert_sky at 160x120, 8 cameras, 16 samples, 128^2 truth, with per-view truth (~10 s of Cycles)."""
+    """lambert_sky at 160x120, 8 cameras, 16 samples, 128^2 truth, with per-view truth and shading (~10 s of
+    Cycles)."""
     out = tmp_path_factory.mktemp("sky")
     make_fixtures().generate(
-        "lambert_sky", str(out), resolution=RES, n_cameras=N_CAMS, samples=SAMPLES, texture_size=TEX, view_gt=True
+        "lambert_sky",
+        str(out),
+        resolution=RES,
+        n_cameras=N_CAMS,
+        samples=SAMPLES,
+        texture_size=TEX,
+        view_gt=True,
+        shading_views=True,
     )
     return os.path.join(str(out), "lambert_sky")
 
@@ -104,3 +115,28 @@ def test_occlusion_and_two_stages_beat_the_papers_model(small_sky, tmp_path):
     ours, _, _, _ = score(small_sky, tmp_path / "texture")
     assert ours.mean() < 0.8 * paper.mean(), (ours, paper)
     assert np.all(ours < paper), (ours, paper)
+
+
+def test_the_shading_known_gives_back_the_albedo(small_sky, tmp_path):
+    """bench/shading_ceiling.py's bound: the photos divided by Cycles' own shading give the albedo back."""
+    with open(os.path.join(small_sky, "scene.json")) as fh:
+        record = json.load(fh)
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(small_sky, "scene.blend"))
+    opt = pipeline.Options(object_name=record["mesh"]["object"], out_dir=str(tmp_path), align_photos=False)
+    prepared = pipeline.prepare(bpy.context.scene, opt)
+    inputs, bakes = prepared.inputs, prepared.bakes
+    gt, inside = truth(small_sky, record, TEX)
+    clean, shadings, _ = shading_views(small_sky, record, inputs)
+
+    def rmse(photos, shading):
+        albedo = least_squares_albedo(inputs, bakes, photos, shading, TEX)
+        return scaled_rmse(albedo, gt, np.isfinite(albedo[..., 0]) & inside)
+
+    known = rmse(clean, shadings)
+    project = np.array(_scored(run_project(inputs, bakes, TEX), gt, inside))
+    # Measured: project 0.288 / 0.207 / 0.170, the shading known 0.034 / 0.024 / 0.018 (what is left: render
+    # noise and the 160x120 photos' resolution), a shading flat per photo 0.205 / 0.156 / 0.137.
+    assert np.all(known < 0.2 * project), (known, project)
+    assert known.mean() < 0.04, known
+    flat = [np.broadcast_to(s[b.mask].mean(axis=0), s.shape) for s, b in zip(shadings, bakes)]
+    assert rmse(clean, flat).mean() > 4 * known.mean()
