@@ -55,16 +55,19 @@ def rendered(name):
     """The fixture's folder rendered with its shading views (rendered now unless kept from before)."""
     import bpy  # noqa: F401  (before make_fixtures, whose bmesh comes with it)
 
-    sys.path.insert(0, os.path.dirname(MAKE_FIXTURES))
+    if os.path.dirname(MAKE_FIXTURES) not in sys.path:
+        sys.path.insert(0, os.path.dirname(MAKE_FIXTURES))
     import make_fixtures
 
     stamp_path = os.path.join(RENDERS, name, "stamp.txt")
     stamp = _stamp()
-    if os.path.exists(stamp_path) and open(stamp_path).read() == stamp:
-        return os.path.join(RENDERS, name)
+    if os.path.exists(stamp_path):
+        with open(stamp_path) as fh:
+            if fh.read() == stamp:
+                return os.path.join(RENDERS, name)
     base = make_fixtures.SCENES[name].get("base")
-    if base and not (os.path.exists(os.path.join(RENDERS, base, "stamp.txt"))):
-        rendered(base)
+    if base:
+        rendered(base)  # first, so that the derived scene takes the current base's photos
     make_fixtures.generate(name, RENDERS, shading_views=True, reuse_base=True)
     with open(stamp_path, "w") as fh:
         fh.write(stamp)
@@ -83,7 +86,11 @@ def _with_photos(inputs, photos):
 
 
 def least_squares_albedo(inputs, bakes, photos, shadings, size):
-    """Per texel ``sum w S I / sum w S^2`` over its observations, per channel; NaN where unseen."""
+    """Per texel ``sum w S I / sum w S^2`` over its observations, per channel; NaN where unseen.
+
+    :func:`core.solve.stages.division_start` without its shading floor, which guards against an estimated
+    shading's dark mistakes and would only bias the shadows of an exact one.
+    """
     import dataclasses
 
     from core.solve.discretization import texture_domain
