@@ -52,12 +52,17 @@ _CACHE_VERSION = 2  # raise when what prepare() returns changes
 
 
 def _fingerprint(fixture_dir):
-    """Hash of the names, sizes and times of the fixture's files (photos included)."""
+    """Hash of the names, sizes and times of the fixture's files (photos included; a derived scene's photos are
+    its base scene's, so the base's files too)."""
+    with open(os.path.join(fixture_dir, "scene.json")) as fh:
+        base = json.load(fh).get("base_scene")
+    folders = [fixture_dir] + ([os.path.join(os.path.dirname(fixture_dir), base)] if base else [])
     h = hashlib.sha1()
-    for base, _, files in sorted(os.walk(fixture_dir)):
-        for f in sorted(files):
-            st = os.stat(os.path.join(base, f))
-            h.update(f"{base}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
+    for folder in folders:
+        for root, _, files in sorted(os.walk(folder)):
+            for f in sorted(files):
+                st = os.stat(os.path.join(root, f))
+                h.update(f"{root}/{f}:{st.st_size}:{st.st_mtime_ns}".encode())
     return h.hexdigest()[:16]
 
 
