@@ -38,11 +38,13 @@ def make_fixtures():
     return mf
 
 
-def reduced_fixture(tmp_path_factory, name, resolution):
-    """The fixture ``name`` rendered at ``resolution`` with N_CAMS cameras, SAMPLES samples, a TEX^2 truth; its
-    folder."""
+def reduced_fixture(tmp_path_factory, name, resolution, **extra):
+    """The fixture ``name`` rendered at ``resolution`` with N_CAMS cameras, SAMPLES samples, a TEX^2 truth (and
+    ``extra`` outputs of make_fixtures.generate); its folder."""
     out = tmp_path_factory.mktemp(name)
-    make_fixtures().generate(name, str(out), resolution=resolution, n_cameras=N_CAMS, samples=SAMPLES, texture_size=TEX)
+    make_fixtures().generate(
+        name, str(out), resolution=resolution, n_cameras=N_CAMS, samples=SAMPLES, texture_size=TEX, **extra
+    )
     return os.path.join(str(out), name)
 
 
@@ -50,18 +52,7 @@ def reduced_fixture(tmp_path_factory, name, resolution):
 def small_sky(tmp_path_factory):
     """lambert_sky at 160x120, 8 cameras, 16 samples, 128^2 truth, with per-view truth and shading (~10 s of
     Cycles)."""
-    out = tmp_path_factory.mktemp("sky")
-    make_fixtures().generate(
-        "lambert_sky",
-        str(out),
-        resolution=RES,
-        n_cameras=N_CAMS,
-        samples=SAMPLES,
-        texture_size=TEX,
-        view_gt=True,
-        shading_views=True,
-    )
-    return os.path.join(str(out), "lambert_sky")
+    return reduced_fixture(tmp_path_factory, "lambert_sky", RES, view_gt=True, shading_views=True)
 
 
 def run_fixture(fixture_dir, out_dir, **kw):
