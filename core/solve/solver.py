@@ -167,6 +167,11 @@ class SolverParams:
         with its TV rows weighted down across the albedo edges it found
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
+    light_tilts, light_tilt_iter : int
+        Two stages, texture domain, one light for all photos (not ``lighting="per_view"``): after the lighting
+        stage's first run, each channel is restarted from its shading tilted along the albedo-lighting
+        ambiguity in ``1 + 2 * light_tilts`` ways, each iterated ``light_tilt_iter`` times, and the lowest
+        energy is kept (:func:`core.solve.ambiguity.tilt_search`); 0 tilts skips it.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
@@ -201,6 +206,8 @@ class SolverParams:
     light_size: int = 128
     light_pixels: float = 128.0
     light_edges: float = 0.003
+    light_tilts: int = 6
+    light_tilt_iter: int = 5
     light_data_model: str = "nearest"
     light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
@@ -256,6 +263,11 @@ class SolverParams:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
+        if self.light_tilts < 0 or self.light_tilt_iter < 1:
+            raise ValueError(
+                f"solver: light_tilts must be >= 0 and light_tilt_iter >= 1, got {self.light_tilts}, "
+                f"{self.light_tilt_iter}"
+            )
 
 
 @dataclass

@@ -23,6 +23,7 @@ import numpy as np
 from ..memory import release_free_memory
 from ..parallel import joined, start
 from ..progress import check_cancel, sub_progress
+from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
 from .lighting import shading
@@ -399,7 +400,11 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
+    tilts = params.light_tilts > 0 and params.domain == "texture" and params.lighting != "per_view"
     first = solve_joint(light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges else 1.0), cancel)
+    if tilts:
+        sub_progress(progress, 0.6, 1.0)(0.0, "searching along the albedo-lighting ambiguity")
+        first = tilt_search(light_problem, first, light_params, cancel)
     if edges:
         edges_progress = sub_progress(progress, 0.6, 1.0, "edges")
         first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
@@ -449,6 +454,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
         "lam": params.lam,
         "lighting": params.lighting,
         "edges": first.info.get("edges"),
+        "tilt": first.info.get("tilt"),
         "data_model": first.info.get("data_model"),
         "pixels": light_pixels,
         "seconds": t1 - t0,

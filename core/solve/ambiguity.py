@@ -1,0 +1,149 @@
+"""A search along the albedo-lighting ambiguity, between the lighting stage's two runs.
+
+Under one light, a shading ``s`` and an albedo ``rho`` explain the photos about as well as ``s g(n)`` and
+``rho / g(n)`` for a smooth function g of the normal: only the prior on the albedo tells them apart. The
+lighting stage's MM starts from rho = I, all of the photos' variation taken as albedo, and creeps along that
+valley, so it stops on the albedo's side of it. :func:`tilt_search` restarts each channel from its shading
+tilted by ``exp(a . n)`` for a set of vectors a (:func:`tilt_vectors`), each view's lighting refitted to the
+tilted shading by least squares and the albedo the photos divided by it, iterates each start a few times, and
+keeps the one with the lowest energy; the untilted start is one of them, so the energy can only fall. The
+energy is the one the lighting stage's second run minimises, with the albedo's changes of colour freed
+(:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's edges,
+and the search would find it. Where the
+light moves between photos (``lighting="per_view"``) there is no one shading to tilt, and the search is skipped.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..geometry.transfer import sphere_directions
+from ..progress import check_cancel
+from .discretization import texture_domain
+from .edges import with_edges_freed
+from .lighting import shading
+from .problem import SUN_COLUMNS
+from .sh import view_normal_equations
+from .solver import Channel, Result, channel_threads, rescaled, result_maps
+
+__all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "tilt_search"]
+
+#: Lengths of the tilt vectors: ``exp(a . n)`` changes the shading by a factor ``exp(2 |a|)`` between opposite
+#: normals.
+TILT_LENGTHS = (0.4, 0.8)
+
+
+def tilt_vectors(directions: int) -> np.ndarray:
+    """``(1 + len(TILT_LENGTHS) * directions, 3)``: zero, then each length times each of ``directions``
+    directions spread over the sphere."""
+    dirs = sphere_directions(directions)
+    return np.concatenate([np.zeros((1, 3)), *[length * dirs for length in TILT_LENGTHS]])
+
+
+def tilted_lighting(d, sigma: np.ndarray, normals: np.ndarray, a: np.ndarray, gram: np.ndarray) -> np.ndarray:
+    """Each view's lighting fitted by least squares to its shading ``sigma_v . T`` times ``exp(a . n)``.
+
+    Parameters
+    ----------
+    d : Discretization
+    sigma : (m, K) array
+        One channel's lighting.
+    normals : (P, 3) array
+        The unit normal of each of d's pixels.
+    a : (3,) array
+    gram : (m, K, K) array
+        Each view's ``T^T T`` over its pixels.
+
+    Returns
+    -------
+    (m, K) array
+        With a sun term (the last of :data:`core.solve.problem.SUN_COLUMNS` columns) kept >= 0.
+    """
+    target = shading(d, sigma, np.float64) * np.exp(normals @ a)
+    out = np.empty_like(np.asarray(sigma, np.float64))
+    for v in range(d.n_views):
+        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
+        rhs = np.dot(target[lo:hi], d.nu[lo:hi].astype(np.float64))  # np.dot releases the GIL, @ does not
+        out[v] = np.linalg.lstsq(gram[v], rhs, rcond=1e-10)[0]
+    if out.shape[1] == SUN_COLUMNS:
+        out[:, -1] = np.maximum(out[:, -1], 0.0)
+    return out
+
+
+def _divided(d, c: int, shade: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Per unknown, the least-squares albedo of its observations under the shading ``shade`` (per pixel)."""
+    w = d.obs_weight.astype(np.float64)
+    a = d.from_pixels(np.maximum(shade, 1e-3))
+    num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
+    den = d.scatter(w * a * a)
+    return np.where(den > 0, num / np.maximum(den, 1e-30), fallback)
+
+
+def tilt_search(problem, first: Result, params, cancel=None) -> Result:
+    """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
+
+    Parameters
+    ----------
+    problem : core.solve.problem.Problem
+        The lighting stage's (texture domain).
+    first : core.solve.solver.Result
+        The lighting stage's first run on ``problem``.
+    params : core.solve.solver.SolverParams
+        ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, with
+        the lighting stage's model and TV weight, its TV rows weighted down across the changes of colour of
+        ``first``'s albedo when ``light_edges > 0`` (:func:`core.solve.edges.with_edges_freed`): measured by
+        plain TV, a lower energy is often a lighting that lowers the albedo's edges.
+    cancel : callable() -> bool, optional
+
+    Returns
+    -------
+    core.solve.solver.Result
+        With ``info["tilt"]``: per channel the tilt kept and the energies before and after, and the seconds.
+    """
+    t0 = time.perf_counter()
+    d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
+    C = problem.channels
+    rho = first.texture.reshape(-1, C)[d.texel_index]
+    rho = np.where(np.isfinite(rho), rho, d.rho0)
+    if params.light_edges > 0:
+        d = with_edges_freed(d, rho, params.light_edges)
+    normals = np.concatenate([n[m] for n, m in zip(problem.normals, problem.masks)]).astype(np.float64)
+    gram, _ = view_normal_equations(d.nu, d.pixel_offsets, np.ones(d.nu.shape[0]))
+    tilts = tilt_vectors(params.light_tilts)
+
+    def channel(c):
+        sigma = np.asarray(first.sigma[:, c], np.float64)
+        best, before = None, None
+        for a in tilts:
+            check_cancel(cancel)
+            if np.any(a):
+                start = tilted_lighting(d, sigma, normals, a, gram)
+                rho0 = _divided(d, c, shading(d, start, np.float64), rho[:, c])
+            else:
+                start, rho0 = sigma, rho[:, c]
+            ch = Channel(d, c, params, rho0.astype(np.float32), start)
+            if before is None:
+                before = ch.e
+            for _ in range(params.light_tilt_iter):
+                ch.step()
+            if best is None or ch.e < best[0].e:
+                best = (ch, a)
+        return best[0], {"tilt": best[1].tolist(), "energy_before": before, "energy_after": best[0].e}
+
+    with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
+        found = list(pool.map(channel, range(C)))
+    rho, sigma = rescaled(d, [ch for ch, _ in found])
+    _, texture, seen = result_maps(problem, d, rho, views=False)
+    info = dict(first.info, tilt={"channels": [i for _, i in found], "seconds": time.perf_counter() - t0})
+    return Result(
+        sigma=sigma,
+        views=None,
+        energy=first.energy,
+        iterations=first.iterations,
+        texture=texture,
+        seen=seen,
+        info=info,
+    )
