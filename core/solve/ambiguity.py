@@ -27,7 +27,7 @@ from .edges import with_edges_freed
 from .lighting import shading
 from .problem import SUN_COLUMNS
 from .sh import view_normal_equations
-from .solver import Channel, Result, channel_threads, rescaled, result_maps
+from .solver import Channel, Result, channel_threads, continued_result
 
 __all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "tilt_search"]
 
@@ -135,15 +135,5 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
 
     with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
         found = list(pool.map(channel, range(C)))
-    rho, sigma = rescaled(d, [ch for ch, _ in found])
-    _, texture, seen = result_maps(problem, d, rho, views=False)
-    info = dict(first.info, tilt={"channels": [i for _, i in found], "seconds": time.perf_counter() - t0})
-    return Result(
-        sigma=sigma,
-        views=None,
-        energy=first.energy,
-        iterations=first.iterations,
-        texture=texture,
-        seen=seen,
-        info=info,
-    )
+    tilt = {"channels": [i for _, i in found], "seconds": time.perf_counter() - t0}
+    return continued_result(problem, d, [ch for ch, _ in found], first, views=False, tilt=tilt)

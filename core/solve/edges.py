@@ -20,7 +20,7 @@ import numpy as np
 
 from ..progress import check_cancel
 from .discretization import texture_domain
-from .solver import Channel, Result, iterate, iteration_report, rescaled, result_maps
+from .solver import Channel, continued_result, iterate, iteration_report
 
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
@@ -85,15 +85,4 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
 
     report = iteration_report(progress, params.max_iter)
     history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
-    rho, sigma = rescaled(d, channels)
-    views, texture, seen = result_maps(problem, d, rho)
-    info = dict(first.info, edges={"iterations": len(history) - 1, "energy": history[-1:]})
-    return Result(
-        sigma=sigma,
-        views=views,
-        energy=first.energy,
-        iterations=first.iterations,
-        texture=texture,
-        seen=seen,
-        info=info,
-    )
+    return continued_result(problem, d, channels, first, edges={"iterations": len(history) - 1, "energy": history[-1:]})

@@ -71,6 +71,7 @@ __all__ = [
     "iteration_report",
     "rescaled",
     "result_maps",
+    "continued_result",
     "channel_threads",
     "release_after_iteration",
 ]
@@ -806,6 +807,22 @@ def rescaled(d: Discretization, channels):
             rho[:, c] *= kappa
             sigma[:, c] /= kappa
     return rho, sigma
+
+
+def continued_result(problem, d: Discretization, channels, first: Result, views: bool = True, **info) -> Result:
+    """The result of ``channels`` that took ``first`` further: rescaled (:func:`rescaled`), with ``first``'s
+    energy history and iterations, and its info with ``info`` added."""
+    rho, sigma = rescaled(d, channels)
+    maps, texture, seen = result_maps(problem, d, rho, views)
+    return Result(
+        sigma=sigma,
+        views=maps,
+        energy=first.energy,
+        iterations=first.iterations,
+        texture=texture,
+        seen=seen,
+        info=dict(first.info, **info),
+    )
 
 
 def result_maps(problem, d: Discretization, rho: np.ndarray, views: bool = True):
