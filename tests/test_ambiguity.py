@@ -30,7 +30,7 @@ def test_the_tilted_lighting_draws_the_tilted_shading():
     a = np.array([0.0, 0.3, 0.4])
     target = shading(d, sigma, np.float64) * np.exp(normals @ a)
     fitted = shading(d, tilted_lighting(d, sigma, normals, a, gram), np.float64)
-    # Second-order SH draws exp(a . n) times a smooth shading closely (measured 0.4 % at |a| = 0.4).
+    # Second-order SH draws a smooth shading times exp(a . n) closely (0.4 % off at a = (0, 0, 0.4)).
     assert np.sqrt(np.mean((fitted - target) ** 2) / np.mean(target**2)) < 0.02
 
 

@@ -9,8 +9,8 @@ tilted shading by least squares and the albedo the photos divided by it, iterate
 keeps the one with the lowest energy; the untilted start is one of them, so the energy can only fall. The
 energy is the one the lighting stage's second run minimises, with the albedo's changes of colour freed
 (:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's edges,
-and the search would find it. Where the
-light moves between photos (``lighting="per_view"``) there is no one shading to tilt, and the search is skipped.
+and the search would find it. Where the light moves between photos (``lighting="per_view"``) there is no one
+shading to tilt, and the search is skipped.
 """
 
 from __future__ import annotations
