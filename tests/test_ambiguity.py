@@ -62,3 +62,12 @@ def test_no_tilt_where_the_light_moves_between_photos():
 def test_the_tilt_settings_are_checked(bad):
     with pytest.raises(ValueError, match="light_tilt"):
         SolverParams(**bad).check()
+
+
+@pytest.mark.parametrize("edges", [0.0, 0.003])
+def test_the_progress_of_the_lighting_stage_never_goes_back_with_the_search(edges):
+    scene = sphere_scene(n_views=4, height=60, width=80, texture_size=32, n_cells=6, seed=1)
+    fractions = []
+    params = SolverParams(lam=5.0, albedo_lam=0.3, lighting="coupled", light_size=32, max_iter=5, light_edges=edges)
+    solve(scene.problem, params, progress=lambda f, msg: fractions.append(f))
+    assert fractions and fractions == sorted(fractions)

@@ -401,7 +401,9 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
     tilts = params.light_tilts > 0 and params.domain == "texture" and params.lighting != "per_view"
-    first = solve_joint(light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges else 1.0), cancel)
+    first = solve_joint(
+        light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges or tilts else 1.0), cancel
+    )
     if tilts:
         sub_progress(progress, 0.6, 1.0)(0.0, "searching along the albedo-lighting ambiguity")
         first = tilt_search(light_problem, first, light_params, cancel)
