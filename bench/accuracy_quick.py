@@ -224,9 +224,9 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
     from core.solve.discretization import texture_domain
-    from core.solve.lighting import fit_lighting, shading_error
+    from core.solve.lighting import division_start, fit_lighting, shading_error
     from core.solve.solver import SolverParams
-    from core.solve.stages import ALBEDO_LAMBDA, division_start, solve_albedo
+    from core.solve.stages import ALBEDO_LAMBDA, solve_albedo
 
     # The albedo stage's weight as our run had it (adapted to the colour texture by default).
     lam = ours.info.get("albedo_lam") or sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA

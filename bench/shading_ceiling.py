@@ -88,7 +88,7 @@ def _with_photos(inputs, photos):
 def least_squares_albedo(inputs, bakes, photos, shadings, size):
     """Per texel ``sum w S I / sum w S^2`` over its observations, per channel; NaN where unseen.
 
-    :func:`core.solve.stages.division_start` without its shading floor, which guards against an estimated
+    :func:`core.solve.lighting.division_start` without its shading floor, which guards against an estimated
     shading's dark mistakes and would only bias the shadows of an exact one.
     """
     import dataclasses

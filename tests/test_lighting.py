@@ -5,7 +5,7 @@ import pytest
 
 from core.solve import lighting
 from core.solve.discretization import texture_domain
-from core.solve.lighting import fit_lighting, shading_error, shared_lighting_step, split_gains
+from core.solve.lighting import division_start, fit_lighting, shading_error, shared_lighting_step, split_gains
 from core.solve.problem import Problem
 from core.solve.solver import SolverParams
 from core.solve.stages import (
@@ -54,6 +54,27 @@ def test_fit_lighting_recovers_gains_and_light_from_the_true_albedo(exposed):
     wrong = truth.copy()
     wrong[:, :, 0] += 0.3
     assert np.all(shading_error(d, wrong, truth) > 0.1)
+
+
+def test_division_under_the_true_lighting_recovers_the_albedo(exposed):
+    scene, problem, gains = exposed
+    d = texture_domain(problem)
+    rho = scene.albedo_texture.reshape(-1, 3)[d.texel_index]
+    truth = scene.sigma * gains[:, :, None]
+    err = np.abs(division_start(d, truth) - rho)
+    # Texels away from the albedo's edges (the splat blurs across them) come back to the noise (0.002).
+    assert np.median(err) < 0.005 and np.mean(err) < 0.04
+    # A lighting tilted towards one side is measurably off.
+    tilted = truth.copy()
+    tilted[:, :, 1:4] += 0.3 * truth[:, :, [0]]
+    assert np.median(np.abs(division_start(d, tilted) - rho)) > 5 * np.median(err)
+    # One channel at a time, the same; unfloored, the dark texels come back too.
+    one = division_start(d, truth[:, [1]], channels=[1])
+    assert np.array_equal(one[:, 0], division_start(d, truth)[:, 1])
+    unfloored = np.abs(division_start(d, truth[:, [1]], channels=[1], floor=1e-6)[:, 0] - rho[:, 1])
+    assert np.median(unfloored) < 0.005
+    # The lighting doubled halves it.
+    assert np.allclose(division_start(d, 2 * truth), division_start(d, truth) / 2, rtol=1e-4)
 
 
 def test_bad_lighting_params():

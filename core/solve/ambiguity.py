@@ -24,7 +24,7 @@ from ..geometry.transfer import sphere_directions
 from ..progress import check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
-from .lighting import shading
+from .lighting import division_start, shading
 from .problem import SUN_COLUMNS
 from .sh import view_normal_equations
 from .solver import Channel, Result, channel_threads, continued_result
@@ -73,15 +73,6 @@ def tilted_lighting(d, sigma: np.ndarray, normals: np.ndarray, a: np.ndarray, gr
     return out
 
 
-def _divided(d, c: int, shade: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Per unknown, the least-squares albedo of its observations under the shading ``shade`` (per pixel)."""
-    w = d.obs_weight.astype(np.float64)
-    a = d.from_pixels(np.maximum(shade, 1e-3))
-    num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
-    den = d.scatter(w * a * a)
-    return np.where(den > 0, num / np.maximum(den, 1e-30), fallback)
-
-
 def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
 
@@ -113,6 +104,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     normals = np.concatenate([n[m] for n, m in zip(problem.normals, problem.masks)]).astype(np.float64)
     gram, _ = view_normal_equations(d.nu, d.pixel_offsets, np.ones(d.nu.shape[0]))
     tilts = tilt_vectors(params.light_tilts)
+    has_data = d.scatter(d.obs_weight.astype(np.float64)) > 0
 
     def channel(c):
         sigma = np.asarray(first.sigma[:, c], np.float64)
@@ -121,7 +113,8 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
             check_cancel(cancel)
             if np.any(a):
                 start = tilted_lighting(d, sigma, normals, a, gram)
-                rho0 = _divided(d, c, shading(d, start, np.float64), rho[:, c])
+                rho0 = division_start(d, start[:, None], channels=[c], floor=1e-3)[:, 0]
+                rho0 = np.where(has_data, rho0, rho[:, c])
             else:
                 start, rho0 = sigma, rho[:, c]
             ch = Channel(d, c, params, rho0.astype(np.float32), start)

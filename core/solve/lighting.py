@@ -15,8 +15,9 @@ three models, chosen by ``SolverParams.lighting``:
 * ``"coupled"``: free per view, held to such a shared lighting by a quadratic prior that is part of the energy
   (:class:`Coupling`); between the two. :func:`choose_lighting` picks it, or ``per_view`` when the light moves.
 
-:func:`fit_lighting` fits the lighting to a known albedo (the true-lighting ceiling of the benchmarks) and
-:func:`shading_error` compares two lightings by the shading they give over the observations.
+:func:`fit_lighting` fits the lighting to a known albedo (the true-lighting ceiling of the benchmarks),
+:func:`division_start` the albedo to a known lighting, and :func:`shading_error` compares two lightings by the
+shading they give over the observations.
 """
 
 from __future__ import annotations
@@ -30,11 +31,13 @@ from .sh import view_normal_equations
 __all__ = [
     "choose_lighting",
     "Coupling",
+    "division_start",
     "fit_lighting",
     "per_view_lighting_step",
     "prior_metric",
     "shading",
     "shading_error",
+    "shading_floor",
     "shared_lighting_step",
     "split_gains",
 ]
@@ -256,6 +259,51 @@ def _ls_equations(d, rho, c):
     g = np.bincount(d.obs_pixel, weights=w * rho_o * rho_o, minlength=npix)
     h = np.bincount(d.obs_pixel, weights=w * rho_o, minlength=npix) * d.values[:, c]
     return view_normal_equations(d.nu, d.pixel_offsets, g, h)
+
+
+# Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
+# lighting says "dark", dividing by it blows the albedo up.
+SHADING_FLOOR = 0.2
+
+
+def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
+    """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
+    pos = shade[shade > 0]
+    return floor * (float(np.median(pos)) if pos.size else 1.0)
+
+
+def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
+    """The shading raised to at least ``floor`` times its median over the positive values."""
+    return np.maximum(shade, shading_floor(shade, floor))
+
+
+def division_start(d, sigma: np.ndarray, channels=None, floor: float | None = None) -> np.ndarray:
+    """Per unknown, the least-squares albedo of its observations under a fixed lighting: ``(n, C)``.
+
+    ``rho_u = sum_o beta_o a_o I_o / sum_o beta_o a_o^2`` over the observations
+    of unknown u, with the floored shading ``a`` (the minimiser of the data
+    term alone when each observation sees one unknown); 0 where u has no weight.
+
+    Parameters
+    ----------
+    d : Discretization
+    sigma : (m, C, K) array
+        The lighting of each of ``channels``.
+    channels : sequence of int, optional
+        Which of the photos' channels ``sigma`` lights; default all.
+    floor : float, optional
+        The least shading, absolute; default :func:`floored` (:data:`SHADING_FLOOR` of the median).
+    """
+    channels = range(d.values.shape[1]) if channels is None else channels
+    out = np.empty((d.n_unknowns, len(channels)), np.float32)
+    w = d.obs_weight.astype(np.float64)
+    for k, c in enumerate(channels):
+        shade = shading(d, sigma[:, k], np.float64)
+        a = d.from_pixels(floored(shade) if floor is None else np.maximum(shade, floor))
+        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
+        den = d.scatter(w * a * a)
+        out[:, k] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
+    return out
 
 
 def fit_lighting(d, rho: np.ndarray, lighting: str = "per_view", rounds: int = 50) -> np.ndarray:

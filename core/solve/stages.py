@@ -26,7 +26,7 @@ from ..progress import check_cancel, sub_progress
 from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
-from .lighting import shading
+from .lighting import division_start, floored
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .solver import (
     Channel,
@@ -44,11 +44,9 @@ __all__ = [
     "ALBEDO_LAMBDA",
     "adapted_albedo_lam",
     "colour_texture",
-    "division_start",
     "lighting_data_model",
     "lighting_stage",
     "pixels_per_texel",
-    "shading_floor",
     "solve",
     "solve_albedo",
     "solve_two_stage",
@@ -81,40 +79,6 @@ ALBEDO_LAMBDA = 20.0
 COLOUR_TEXTURE_REFERENCE = 0.044
 COLOUR_TEXTURE_POWER = 6.0
 COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
-
-
-# Shading below this fraction of the median shading is raised to it when the lighting is fixed: where the
-# lighting says "dark", dividing by it blows the albedo up.
-SHADING_FLOOR = 0.2
-
-
-def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
-    """The least shading :func:`floored` keeps: ``floor`` times the median of the positive values."""
-    pos = shade[shade > 0]
-    return floor * (float(np.median(pos)) if pos.size else 1.0)
-
-
-def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
-    """The shading raised to at least ``floor`` times its median over the positive values."""
-    return np.maximum(shade, shading_floor(shade, floor))
-
-
-def division_start(d, sigma: np.ndarray) -> np.ndarray:
-    """Per unknown, the least-squares albedo of its observations under a fixed lighting: ``(n, C)``.
-
-    ``rho_u = sum_o beta_o a_o I_o / sum_o beta_o a_o^2`` over the observations
-    of unknown u, with the floored shading ``a`` (the minimiser of the data
-    term alone when each observation sees one unknown).
-    """
-    C = d.values.shape[1]
-    out = np.empty((d.n_unknowns, C), np.float32)
-    w = d.obs_weight.astype(np.float64)
-    for c in range(C):
-        a = d.from_pixels(floored(shading(d, sigma[:, c], np.float64)))
-        num = d.scatter(w * a * d.from_pixels(d.values[:, c]))
-        den = d.scatter(w * a * a)
-        out[:, c] = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
-    return out
 
 
 def _start(d, sigma, half=None) -> np.ndarray:

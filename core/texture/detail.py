@@ -2,7 +2,7 @@
 
 The solve runs on photos downscaled to the working resolution. That is plenty for the lighting, which is smooth
 by nature, but the albedo then holds no finer detail than those copies. Under the solved lighting, a pixel's
-albedo is its value divided by its shading (what :func:`core.solve.stages.division_start` does for one
+albedo is its value divided by its shading (what :func:`core.solve.lighting.division_start` does for one
 observation), and that needs no solve: so this stage takes each photo at its own resolution in turn, bakes that
 view in bands of rows (:func:`core.geometry.bake.bake_rows`), divides every pixel by its shading
 ``sigma_v . T`` (T the transfer at the pixel, :class:`core.geometry.transfer.OcclusionGrid`; the shading floored
@@ -11,7 +11,7 @@ as the solve floors it) and adds the quotient into the texel that holds its UV (
 
 * its view weight (the cosine to the camera), as the fusion weighs views,
 * its squared shading, so that the mean is the least-squares albedo of the texel's pixels (as
-  :func:`core.solve.stages.division_start` takes it) and dark pixels, whose quotient is noisiest, count least,
+  :func:`core.solve.lighting.division_start` takes it) and dark pixels, whose quotient is noisiest, count least,
   and
 * how well its view agreed with the other views at the working resolution (:func:`agreement`): Tukey's
   biweight of the log ratio between the view's own quotient and the median of all views' quotients, so that a
@@ -35,7 +35,7 @@ from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
-from ..solve.stages import shading_floor
+from ..solve.lighting import shading_floor
 from .fuse import fuse_views
 
 __all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
@@ -74,7 +74,7 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
 
 
 def shading_floors(sigma, normals, uvs, masks, cells=None, sun=None, positions=None) -> np.ndarray:
-    """Per channel, the least shading kept (:func:`core.solve.stages.shading_floor` over every view's pixels).
+    """Per channel, the least shading kept (:func:`core.solve.lighting.shading_floor` over every view's pixels).
 
     ``sun`` and the views' world ``positions``: as :func:`shading`.
     """
