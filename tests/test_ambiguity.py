@@ -52,10 +52,21 @@ def test_the_tilt_search_takes_the_lighting_stage_further_along_the_ambiguity():
     assert err_tilted < 0.9 * err_plain
 
 
-def test_no_tilt_where_the_light_moves_between_photos():
-    scene = sphere_scene(n_views=4, height=60, width=80, texture_size=32, n_cells=6, seed=1)
-    r = solve(scene.problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="per_view", light_size=32, max_iter=5))
-    assert r.info["lighting_stage"]["tilt"] is None
+def test_the_tilt_search_runs_where_the_light_moves_between_photos():
+    # The same cells with the light moved per photo: g(n) is the surface's, so every view's shading tilts with it.
+    scene = sphere_scene(
+        n_views=8, height=90, width=120, texture_size=64, n_cells=6, seed=5, noise=0.002, varying_light=True
+    )
+    d = texture_domain(scene.problem)
+    base = dict(lam=5.0, albedo_lam=0.3, lighting="per_view", light_size=64)
+    plain = solve(scene.problem, SolverParams(**base, light_tilts=0))
+    tilted = solve(scene.problem, SolverParams(**base))
+    assert len(tilted.info["lighting_stage"]["tilt"]["channels"]) == 3
+    # Measured: shading error 0.194 -> 0.182, albedo 0.106 -> 0.093 (6 of 6 seeds better).
+    assert shading_error(d, tilted.sigma, scene.sigma).mean() < 0.97 * shading_error(d, plain.sigma, scene.sigma).mean()
+    err_plain = np.mean(scaled_rmse(plain.texture, scene.albedo_texture, plain.seen))
+    err_tilted = np.mean(scaled_rmse(tilted.texture, scene.albedo_texture, tilted.seen))
+    assert err_tilted < 0.93 * err_plain
 
 
 @pytest.mark.parametrize("bad", [dict(light_tilts=-1), dict(light_tilt_iter=0)])

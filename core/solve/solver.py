@@ -169,8 +169,7 @@ class SolverParams:
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
     light_tilts, light_tilt_iter : int
-        Two stages, texture domain, one light for all photos (not ``lighting="per_view"``): after the lighting
-        stage's first run, each channel is restarted from its shading tilted along the albedo-lighting
+        Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its shading tilted along the albedo-lighting
         ambiguity in ``1 + 2 * light_tilts`` ways, each iterated ``light_tilt_iter`` times, and the lowest
         energy is kept (:func:`core.solve.ambiguity.tilt_search`); 0 tilts skips it.
     albedo_edges : float

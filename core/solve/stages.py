@@ -364,7 +364,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
-    tilts = params.light_tilts > 0 and params.domain == "texture" and params.lighting != "per_view"
+    tilts = params.light_tilts > 0 and params.domain == "texture"
     first = solve_joint(
         light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges or tilts else 1.0), cancel
     )
