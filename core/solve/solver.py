@@ -169,9 +169,10 @@ class SolverParams:
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
     light_tilts, light_tilt_iter : int
-        Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its shading tilted along the albedo-lighting
-        ambiguity in ``1 + 2 * light_tilts`` ways, each iterated ``light_tilt_iter`` times, and the lowest
-        energy is kept (:func:`core.solve.ambiguity.tilt_search`); 0 tilts skips it.
+        Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its
+        shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
+        ``light_tilt_iter`` times, and the lowest energy is kept (:func:`core.solve.ambiguity.tilt_search`);
+        0 tilts skips it.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
