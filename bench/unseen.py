@@ -1,4 +1,4 @@
-"""Twelve scenes that no default was chosen on: new pairings of the fixtures' meshes, albedos and lights.
+"""Seventeen scenes that no default was chosen on: new pairings of the fixtures' meshes, albedos and lights.
 
 Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
 cores), into ``build/bench/unseen/`` (not kept in the repository)::
@@ -96,7 +96,7 @@ SCENES = {
         photo_format="JPEG",
         jpeg_quality=90,
     ),
-    # Seven more (2026-11-27), so that a default is judged on twelve scenes it has not seen.
+    # Seven more (2026-11-26, eighth session), so that a default is judged on twelve scenes it has not seen.
     "u_suzanne_coffee_forest": dict(
         _COMMON,
         seed=9600,
@@ -184,6 +184,80 @@ SCENES = {
         lighting=dict(kind="hdri_per_view", hdri=["forest", "city"], strength=[0.8, 0.6], rotation_step_deg=137.5),
         photo_format="EXR",
     ),
+    # Five more (2026-11-26, eighth session), rendered to check a choice made on the twelve above.
+    "u_bowl_chelsea_courtyard": dict(
+        _COMMON,
+        seed=10400,
+        film_transparent=True,
+        mesh="bowl",
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["courtyard"], strength=0.7, rotation_deg=[200.0]),
+        photo_format="EXR",
+    ),
+    "u_torus_noise_sun": dict(
+        _COMMON,
+        seed=10500,
+        mesh="torus",
+        albedo="noise",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=40.0,
+            sun_azimuth_deg=100.0,
+            hdri=["city"],
+            strength=0.3,
+            rotation_deg=[30.0],
+        ),
+        photo_format="PNG",
+        capture=dict(exposure_ev=0.5, white_balance=0.10),
+    ),
+    "u_rock_checker_forest": dict(
+        _COMMON,
+        seed=10600,
+        film_transparent=True,
+        mesh="rock",
+        albedo="checker",
+        interpolation="Closest",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["forest"], strength=1.0, rotation_deg=[300.0]),
+        photo_format="EXR",
+    ),
+    "u_stairs_patches_sunrise": dict(
+        _COMMON,
+        resolution=(320, 240),
+        seed=10700,
+        mesh="stairs",
+        albedo="patches",
+        interpolation="Closest",
+        material="diffuse",
+        lighting=dict(kind="hdri", hdri=["sunrise"], strength=0.8, rotation_deg=[60.0]),
+        photo_format="JPEG",
+        jpeg_quality=90,
+        capture=dict(jitter_px=1.0),
+    ),
+    "u_suzanne_coffee_sun": dict(
+        _COMMON,
+        seed=10800,
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.5,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=30.0,
+            sun_azimuth_deg=-100.0,
+            hdri=["forest"],
+            strength=0.3,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+    ),
 }
 
 
@@ -196,8 +270,9 @@ def main(argv=None):
         fixtures.SCENES[name] = spec
         fixtures._DESCRIPTIONS[name] = f"unseen scene {name} (bench/unseen.py)"
     for name in args.only or SCENES:
-        fixtures.generate(name, args.out)
-        print("made", os.path.join(args.out, name), flush=True)
+        # Absolute: the scene's photo paths are made relative to the .blend, and a relative --out broke them.
+        fixtures.generate(name, os.path.abspath(args.out))
+        print("made", os.path.join(os.path.abspath(args.out), name), flush=True)
 
 
 if __name__ == "__main__":
