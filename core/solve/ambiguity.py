@@ -2,16 +2,15 @@
 
 A shading ``s`` and an albedo ``rho`` explain the photos about as well as ``s g(n)`` and ``rho / g(n)`` for a
 smooth function g of the normal: only the prior on the albedo tells them apart. Where the light moves between
-photos each view has its own shading ``s_v``, but g is the surface's, so ``s_v g(n)`` for all views at once
-is the same valley: the search runs there too. The
-lighting stage's MM starts from rho = I, all of the photos' variation taken as albedo, and creeps along that
-valley, so it stops on the albedo's side of it. :func:`tilt_search` restarts each channel from its shading
-tilted by ``exp(a . n)`` for a set of vectors a (:func:`tilt_vectors`), each view's lighting refitted to the
-tilted shading by least squares and the albedo the photos divided by it, iterates each start a few times, and
-keeps the one with the lowest energy; the untilted start is one of them, so the energy can only fall. The
-energy is the one the lighting stage's second run minimises, with the albedo's changes of colour freed
-(:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's edges,
-and the search would find it.
+photos each view has its own shading ``s_v``, but g is the surface's, so ``s_v g(n)`` for all views at once is
+the same valley. The lighting stage's MM starts from rho = I, all of the photos' variation taken as albedo, and
+creeps along that valley, so it stops on the albedo's side of it. :func:`tilt_search` restarts each channel
+from its shading tilted by ``exp(a . n)`` for a set of vectors a (:func:`tilt_vectors`), each view's lighting
+refitted to the tilted shading by least squares and the albedo the photos divided by it, iterates each start a
+few times, and keeps the one with the lowest energy; the untilted start is one of them, so the energy can only
+fall. The energy is the one the lighting stage's second run minimises, with the albedo's changes of colour
+freed (:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's
+edges, and the search would find it.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ stages (:func:`solve_two_stage`):
    and flattens its detail.
 2. :func:`solve_albedo`: the albedo again, under that lighting held fixed, with a weak TV weight chosen from
    the photos' colour texture (:func:`colour_texture`): a convex problem in rho alone, started from the photos
-   divided by the shading (:func:`division_start`), or from its own solve at half the size.
+   divided by the shading (:func:`core.solve.lighting.division_start`), or from its own solve at half the size.
 """
 
 from __future__ import annotations
