@@ -63,11 +63,8 @@ def tilted_lighting(d, sigma: np.ndarray, normals: np.ndarray, a: np.ndarray, gr
         With a sun term (the last of :data:`core.solve.problem.SUN_COLUMNS` columns) kept >= 0.
     """
     target = shading(d, sigma, np.float64) * np.exp(normals @ a)
-    out = np.empty_like(np.asarray(sigma, np.float64))
-    for v in range(d.n_views):
-        lo, hi = d.pixel_offsets[v], d.pixel_offsets[v + 1]
-        rhs = np.dot(target[lo:hi], d.nu[lo:hi].astype(np.float64))  # np.dot releases the GIL, @ does not
-        out[v] = np.linalg.lstsq(gram[v], rhs, rcond=1e-10)[0]
+    _, rhs = view_normal_equations(d.nu, d.pixel_offsets, None, target)
+    out = np.stack([np.linalg.lstsq(gram[v], rhs[v], rcond=1e-10)[0] for v in range(d.n_views)])
     if out.shape[1] == SUN_COLUMNS:
         out[:, -1] = np.maximum(out[:, -1], 0.0)
     return out

@@ -87,8 +87,8 @@ def view_normal_equations(nu, offsets, g, h=None, dtype=np.float64, nu_t=None):
     """Per view v (rows ``offsets[v]:offsets[v + 1]``): ``sum_p g_p nu_p nu_p^T`` and ``sum_p h_p nu_p``.
 
     Computed in ``dtype`` (float32: the sigma-step's BLAS products); returned as float64 arrays ``(m, K, K)``
-    and ``(m, K)``, the latter unset when ``h`` is None. ``nu_t``: as :func:`weighted_gram`, used when it is of
-    ``dtype``.
+    and ``(m, K)``, the former unset when ``g`` is None and the latter when ``h`` is. ``nu_t``: as
+    :func:`weighted_gram`, used when it is of ``dtype``.
     """
     m, k = len(offsets) - 1, nu.shape[1]
     Ms, bs = np.empty((m, k, k)), np.empty((m, k))
@@ -97,7 +97,8 @@ def view_normal_equations(nu, offsets, g, h=None, dtype=np.float64, nu_t=None):
     for v in range(m):
         lo, hi = offsets[v], offsets[v + 1]
         rows = nu[lo:hi].astype(dtype, copy=False)
-        Ms[v] = weighted_gram(rows, g[lo:hi], None if nu_t is None else nu_t[:, lo:hi])
+        if g is not None:
+            Ms[v] = weighted_gram(rows, g[lo:hi], None if nu_t is None else nu_t[:, lo:hi])
         if h is not None:
             bs[v] = np.dot(h[lo:hi].astype(dtype, copy=False), rows)  # np.dot releases the GIL, @ does not
     return Ms, bs
