@@ -3,10 +3,12 @@
 Run by hand (not a test)::
 
     .venv/bin/python bench/shading_ceiling.py [--only bowl_checker rock_photo] [--json bench/shading_ceiling.json]
+    .venv/bin/python bench/shading_ceiling.py --unseen [--json bench/shading_ceiling_unseen.json]
 
 Each fixture of ``blend_fixtures/`` is rendered again, with Cycles' diffuse passes saved per photo
 (``make_fixtures.generate(..., shading_views=True)``), into ``build/bench/shading/``; the renders are kept while
-``make_fixtures.py`` and Blender's version are unchanged. Then, per fixture at its truth's size (RMSE as in
+``make_fixtures.py`` and Blender's version are unchanged (``--unseen``: the scenes of ``bench/unseen.py``, into
+``build/bench/shading_unseen/``). Then, per fixture at its truth's size (RMSE as in
 ``bench/accuracy_quick.py``, mean over R, G, B):
 
 * ``project``: the re-rendered photos fused onto the texture (``--method project``);
@@ -51,7 +53,7 @@ def _stamp():
         return f"{hashlib.sha1(fh.read()).hexdigest()[:16]} {bpy.app.version_string}"
 
 
-def rendered(name):
+def rendered(name, renders=RENDERS):
     """The fixture's folder rendered with its shading views (rendered now unless kept from before)."""
     import bpy  # noqa: F401  (before make_fixtures, whose bmesh comes with it)
 
@@ -59,19 +61,19 @@ def rendered(name):
         sys.path.insert(0, os.path.dirname(MAKE_FIXTURES))
     import make_fixtures
 
-    stamp_path = os.path.join(RENDERS, name, "stamp.txt")
+    stamp_path = os.path.join(renders, name, "stamp.txt")
     stamp = _stamp()
     if os.path.exists(stamp_path):
         with open(stamp_path) as fh:
             if fh.read() == stamp:
-                return os.path.join(RENDERS, name)
+                return os.path.join(renders, name)
     base = make_fixtures.SCENES[name].get("base")
     if base:
-        rendered(base)  # first, so that the derived scene takes the current base's photos
-    make_fixtures.generate(name, RENDERS, shading_views=True, reuse_base=True)
+        rendered(base, renders)  # first, so that the derived scene takes the current base's photos
+    make_fixtures.generate(name, renders, shading_views=True, reuse_base=True)
     with open(stamp_path, "w") as fh:
         fh.write(stamp)
-    return os.path.join(RENDERS, name)
+    return os.path.join(renders, name)
 
 
 def _shading_views(folder, record):
@@ -144,10 +146,10 @@ def shading_views(folder, record, inputs):
     return clean, shadings, seen_albedo
 
 
-def evaluate(name):
+def evaluate(name, renders=RENDERS):
     from core.evaluate.metrics import scaled_rmse
 
-    folder = rendered(name)
+    folder = rendered(name, renders)
     record, inputs, bakes = load_case(name, folder)
     size = record["albedo_gt"]["size"][0]
     gt, inside = truth(folder, record, size)
@@ -163,13 +165,20 @@ def evaluate(name):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--only", nargs="*", help="fixture names (default: all)")
+    p.add_argument("--unseen", action="store_true", help="the scenes of bench/unseen.py, not the fixtures")
     p.add_argument("--json", help="write the rows here")
     a = p.parse_args(argv)
     rows = []
     started = datetime.datetime.now().isoformat(timespec="seconds")
-    # Only the committed fixtures: they are rendered again from make_fixtures.py's own scene specs.
-    for name, _ in fixtures(os.path.join(ROOT, "blend_fixtures"), a.only):
-        row = evaluate(name)
+    if a.unseen:
+        from bench.unseen import register
+
+        names, renders = register(a.only), os.path.join(ROOT, "build", "bench", "shading_unseen")
+    else:
+        # The committed fixtures: they are rendered again from make_fixtures.py's own scene specs.
+        names, renders = [n for n, _ in fixtures(os.path.join(ROOT, "blend_fixtures"), a.only)], RENDERS
+    for name in names:
+        row = evaluate(name, renders)
         rows.append(row)
         pr, sk, al = (float(np.mean(row[k])) for k in ("project", "shading_known", "albedo_seen"))
         print(

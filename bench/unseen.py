@@ -1,4 +1,4 @@
-"""Seventeen scenes that no default was chosen on: new pairings of the fixtures' meshes, albedos and lights.
+"""Twenty-two scenes that no default was chosen on: new pairings of the fixtures' meshes, albedos and lights.
 
 Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
 cores), into ``build/bench/unseen/`` (not kept in the repository)::
@@ -258,7 +258,107 @@ SCENES = {
         ),
         photo_format="PNG",
     ),
+    # Five more (2026-11-27, ninth session), rendered to check the albedo stage's floor (docs/measurements.md).
+    "u_rock_noise_sunset_sun": dict(
+        _COMMON,
+        seed=10900,
+        film_transparent=True,
+        mesh="rock",
+        albedo="noise",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=3.0,
+            sun_elevation_deg=25.0,
+            sun_azimuth_deg=200.0,
+            hdri=["sunset"],
+            strength=0.4,
+            rotation_deg=[90.0],
+        ),
+        photo_format="EXR",
+    ),
+    "u_bowl_coffee_sun": dict(
+        _COMMON,
+        seed=11000,
+        mesh="bowl",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=50.0,
+            sun_azimuth_deg=-40.0,
+            hdri=["interior"],
+            strength=0.4,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+    ),
+    "u_stairs_chelsea_sun": dict(
+        _COMMON,
+        seed=11100,
+        mesh="stairs",
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=35.0,
+            sun_azimuth_deg=70.0,
+            hdri=["city"],
+            strength=0.3,
+            rotation_deg=[180.0],
+        ),
+        photo_format="JPEG",
+        jpeg_quality=92,
+        capture=dict(exposure_ev=0.4, white_balance=0.08),
+    ),
+    "u_suzanne_chelsea_courtyard": dict(
+        _COMMON,
+        seed=11200,
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="principled",
+        lighting=dict(kind="hdri", hdri=["courtyard"], strength=0.8, rotation_deg=[250.0]),
+        photo_format="PNG",
+    ),
+    "u_torus_coffee_sun": dict(
+        _COMMON,
+        seed=11300,
+        mesh="torus",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(
+            kind="sun",
+            sun_strength=3.0,
+            sun_angle_deg=4.0,
+            sun_elevation_deg=20.0,
+            sun_azimuth_deg=10.0,
+            hdri=["studio"],
+            strength=0.3,
+            rotation_deg=[0.0],
+        ),
+        photo_format="PNG",
+    ),
 }
+
+
+def register(only=None):
+    """Make the scenes known to ``make_fixtures``; the names of ``only`` (all if None), checked."""
+    for name, spec in SCENES.items():
+        fixtures.SCENES[name] = spec
+        fixtures._DESCRIPTIONS[name] = f"unseen scene {name} (bench/unseen.py)"
+    unknown = sorted(set(only or ()) - set(SCENES))
+    if unknown:
+        raise SystemExit(f"error: no unseen scene {', '.join(unknown)} (bench/unseen.py has {', '.join(SCENES)})")
+    return list(only or SCENES)
 
 
 def main(argv=None):
@@ -266,10 +366,7 @@ def main(argv=None):
     p.add_argument("--out", default=os.path.join(ROOT, "build", "bench", "unseen"))
     p.add_argument("--only", nargs="*", choices=list(SCENES), help="scenes to make (default: all)")
     args = p.parse_args(argv)
-    for name, spec in SCENES.items():
-        fixtures.SCENES[name] = spec
-        fixtures._DESCRIPTIONS[name] = f"unseen scene {name} (bench/unseen.py)"
-    for name in args.only or SCENES:
+    for name in register(args.only):
         # Absolute: the scene's photo paths are made relative to the .blend, and a relative --out broke them.
         fixtures.generate(name, os.path.abspath(args.out))
         print("made", os.path.join(os.path.abspath(args.out), name), flush=True)

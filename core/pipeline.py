@@ -228,9 +228,9 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
     report = stage_progress(progress, "detail", DETAIL_STAGES)
     report(0.0, "lighting at the working resolution")
     normals, uvs, positions = [b.normal for b in bakes], [b.uv for b in bakes], [b.position for b in bakes]
-    floor = shading_floors(sigma, normals, uvs, masks, cells, sun, positions)
-    weights = [b.view_weight for b in bakes]
     photos = [v.photo for v in inputs.views]
+    floor = shading_floors(sigma, normals, uvs, masks, photos, cells, sun, positions)
+    weights = [b.view_weight for b in bakes]
     agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions)
     views = inputs.views
 

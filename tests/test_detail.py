@@ -204,7 +204,7 @@ def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
             sigma[None].repeat(1, 0),
             albedo,
             np.ones((N, N), bool),
-            np.full(3, 0.1),
+            np.tile([0.05, 0.1, 1.0], (3, 1)),
         )
 
 

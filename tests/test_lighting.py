@@ -201,3 +201,26 @@ def test_what_a_view_does_not_see_is_held_to_the_world_lighting(floor):
     assert np.allclose(sigma[[0, 2]], g[[0, 2], None] * s, atol=1e-6)
     held = np.allclose(sigma[1], g[1] * s, atol=1e-6)
     assert held == (floor > 0), sigma[1] - g[1] * s
+
+
+def test_the_floor_keeps_a_shadow_the_photo_shows_and_holds_a_dark_mistake():
+    rng = np.random.default_rng(3)
+    rho = rng.uniform(0.3, 0.7, 1000)
+    shade = np.ones(1000)
+    shade[:100] = 0.12  # a sun's shadow the lighting draws, and the photo shows
+    photo = rho * shade
+    shade[100:150] = 0.02  # a dark mistake: the photo there is lit (shading 1)
+    new = lighting.floored_where_dark(shade, photo)
+    old = lighting.floored(shade)
+    # The fixed floor (0.2) lifts the shadow and darkens its albedo by 0.12 / 0.2; the new one keeps it.
+    assert np.allclose(old[:100], 0.2)
+    assert np.allclose(new[:100], 0.12)
+    assert np.allclose(photo[:100] / new[:100], rho[:100])
+    # Under a bright pixel the mistake is held as before.
+    assert np.allclose(new[100:150], old[100:150])
+    # Never lower than half the old floor, nor above it; lit pixels untouched.
+    shade[:100] = 0.01
+    assert np.allclose(lighting.floored_where_dark(shade, rho * shade)[:100], 0.1)
+    assert np.array_equal(new[150:], shade[150:])
+    # A black photo gives no brightest albedo: the fixed floor.
+    assert np.array_equal(lighting.floored_where_dark(shade, np.zeros(1000)), lighting.floored(shade))

@@ -31,10 +31,13 @@ from .sh import view_normal_equations
 __all__ = [
     "choose_lighting",
     "Coupling",
+    "dark_floor_bounds",
     "division_start",
     "fit_lighting",
+    "floored_where_dark",
     "per_view_lighting_step",
     "prior_metric",
+    "raised",
     "shading",
     "shading_error",
     "shading_floor",
@@ -275,6 +278,63 @@ def shading_floor(shade: np.ndarray, floor: float = SHADING_FLOOR) -> float:
 def floored(shade: np.ndarray, floor: float = SHADING_FLOOR) -> np.ndarray:
     """The shading raised to at least ``floor`` times its median over the positive values."""
     return np.maximum(shade, shading_floor(shade, floor))
+
+
+# Where the photo is dark too, the floor may fall to this fraction of the median (:func:`floored_where_dark`):
+# a shadow the lighting draws and the photo shows is no mistake to guard against.
+SHADOW_FLOOR = 0.1
+# The brightest albedo a pixel may take under the lowered floor: this quantile of value / shading over the
+# pixels shaded at least at the median, times SHADOW_MARGIN.
+SHADOW_QUANTILE = 0.99
+SHADOW_MARGIN = 1.2
+
+
+def dark_floor_bounds(
+    shade: np.ndarray,
+    values: np.ndarray,
+    floor: float = SHADING_FLOOR,
+    least: float = SHADOW_FLOOR,
+    quantile: float = SHADOW_QUANTILE,
+    margin: float = SHADOW_MARGIN,
+) -> tuple[float, float, float]:
+    """``(low, high, brightest)`` for :func:`floored_where_dark`, from one channel's pixels.
+
+    ``low`` and ``high`` are ``least`` and ``floor`` times the median shading; ``brightest`` is the brightest
+    albedo of the well-lit pixels: ``quantile`` of value / shading where the shading is at least its median,
+    times ``margin`` (0 if there is none).
+    """
+    median = shading_floor(shade, 1.0)
+    lit = shade >= median
+    ratio = np.maximum(values[lit], 0.0) / shade[lit]
+    brightest = float(np.quantile(ratio, quantile)) * margin if ratio.size else 0.0
+    return least * median, floor * median, brightest if brightest > 0 else 0.0
+
+
+def raised(shade: np.ndarray, values: np.ndarray, bounds) -> np.ndarray:
+    """The shading raised to each pixel's floor (:func:`floored_where_dark`), ``bounds`` as
+    :func:`dark_floor_bounds` gives them."""
+    low, high, brightest = bounds
+    if not brightest > 0:
+        return np.maximum(shade, high)
+    return np.maximum(shade, np.clip(np.maximum(values, 0.0) / brightest, low, high))
+
+
+def floored_where_dark(shade: np.ndarray, values: np.ndarray, **bounds) -> np.ndarray:
+    """The shading raised as by :func:`floored`, but less where the photo is dark as well.
+
+    The floor guards the division by the lighting against its dark mistakes: a pixel shaded far darker than its
+    photo shows would take a blown-up albedo. A fixed floor also lifts the true shadows (a sun's, which the
+    sun term draws) and darkens their albedo. Here each pixel's floor is the shading at which its own value
+    gives the brightest albedo of the well-lit pixels, kept between :data:`SHADOW_FLOOR` and
+    :data:`SHADING_FLOOR` times the median (:func:`dark_floor_bounds`, whose parameters ``bounds`` passes on):
+    a dark mistake under a bright pixel is held as before, a shadow under a dark pixel keeps more of its shading.
+
+    Parameters
+    ----------
+    shade, values : (P,) arrays
+        The pixels' shading and their photo's value (one channel).
+    """
+    return raised(shade, values, dark_floor_bounds(shade, values, **bounds))
 
 
 def division_start(d, sigma: np.ndarray, channels=None, floor: float | None = None) -> np.ndarray:

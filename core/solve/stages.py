@@ -26,7 +26,7 @@ from ..progress import check_cancel, sub_progress
 from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
-from .lighting import division_start, floored
+from .lighting import division_start, floored_where_dark
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .solver import (
     Channel,
@@ -290,7 +290,7 @@ def solve_albedo(
 
     def channel(c):
         ch = Channel(d, c, params, rho0[:, c], sigma[:, c])
-        shade = floored(ch.shade.astype(np.float64)).astype(ch.ft)
+        shade = floored_where_dark(ch.shade.astype(np.float64), ch.values).astype(ch.ft)
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
         return ch

@@ -35,7 +35,7 @@ from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
-from ..solve.lighting import shading_floor
+from ..solve.lighting import dark_floor_bounds, raised
 from .fuse import fuse_views
 
 __all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
@@ -53,8 +53,8 @@ _LEAST_AGREEMENT = 1e-3
 _BAND_PIXELS = 1_000_000
 
 
-def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=None) -> np.ndarray:
-    """The shading ``sigma_v . T`` of pixels, ``(P, C)`` float32, floored to ``floor`` (per channel) if given.
+def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=None, values=None) -> np.ndarray:
+    """The shading ``sigma_v . T`` of pixels, ``(P, C)`` float32, raised to its floor if ``floor`` is given.
 
     Parameters
     ----------
@@ -64,19 +64,26 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
         The view's lighting.
     cells : core.geometry.transfer.OcclusionGrid, optional
         The occlusion; without it T is ``nu(n)``, the paper's model.
-    floor : (C,) array, optional
+    floor : (C, 3) array, optional
+        Per channel, :func:`core.solve.lighting.dark_floor_bounds` (:func:`shading_floors`); ``values`` (P, C)
+        the pixels' photo values, which the floor follows as the albedo stage's does.
     sun : core.geometry.sun.SunLight, optional
         A sun term, the last of the lighting's coefficients; ``position`` (P, 3) the pixels' world points.
     """
     t = transfer_rows(normal, uv, cells, sun, position)
     s = t @ np.asarray(sigma_view, np.float32).T
-    return s if floor is None else np.maximum(s, np.asarray(floor, np.float32))
+    if floor is None:
+        return s
+    for c in range(s.shape[1]):
+        s[:, c] = raised(s[:, c], values[:, c], floor[c])
+    return s
 
 
-def shading_floors(sigma, normals, uvs, masks, cells=None, sun=None, positions=None) -> np.ndarray:
-    """Per channel, the least shading kept (:func:`core.solve.lighting.shading_floor` over every view's pixels).
+def shading_floors(sigma, normals, uvs, masks, photos, cells=None, sun=None, positions=None) -> np.ndarray:
+    """Per channel, the albedo stage's floor bounds over every view's pixels: ``(C, 3)``.
 
-    ``sun`` and the views' world ``positions``: as :func:`shading`.
+    :func:`core.solve.lighting.dark_floor_bounds` of the working-resolution ``photos``; ``sun`` and the views'
+    world ``positions``: as :func:`shading`.
     """
     shades = np.concatenate(
         [
@@ -84,7 +91,11 @@ def shading_floors(sigma, normals, uvs, masks, cells=None, sun=None, positions=N
             for v, (n, uv, m) in enumerate(zip(normals, uvs, masks))
         ]
     )
-    return np.array([shading_floor(shades[:, c].astype(np.float64)) for c in range(shades.shape[1])], np.float32)
+    values = np.concatenate([p[m] for p, m in zip(photos, masks)])
+    return np.array(
+        [dark_floor_bounds(shades[:, c].astype(np.float64), values[:, c]) for c in range(shades.shape[1])],
+        np.float64,
+    )
 
 
 def _log_ratio(q, b):
@@ -108,7 +119,8 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, su
     photos, masks, uvs, normals, weights : lists of (H, W, ...) arrays
         The working-resolution photos and their bakes (``weights`` the view weights).
     sigma : (m, C, K) array
-    floor : (C,) array
+    floor : (C, 3) array
+        :func:`shading_floors`.
     cells : OcclusionGrid, optional
     sun, positions : SunLight and the views' (H, W, 3) world points, optional
         As :func:`shading`.
@@ -122,7 +134,7 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, su
     for v, (photo, m, uv, nrm) in enumerate(zip(photos, masks, uvs, normals)):
         q = np.zeros(photo.shape, np.float32)
         pos = None if sun is None else positions[v][m]
-        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor, sun, pos)
+        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor, sun, pos, photo[m])
         own.append(q)
     size = pixel_matched_size(masks, uvs, 2048)
     ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
@@ -209,8 +221,8 @@ def detail_albedo(
         The working-resolution albedo, filled: the fallback and the prior of every texel.
     inside : (N, N) bool array
         The texels inside the UV islands; pixels outside them are left out.
-    floor : (C,) array
-        The least shading (:func:`shading_floors`).
+    floor : (C, 3) array
+        The shading's floor bounds (:func:`shading_floors`).
     weights : list of (H', W') arrays, optional
         Per view, a weight per working-resolution pixel (:func:`agreement`); a full-resolution pixel takes the
         weight of the working pixel whose area holds its centre. Default 1.
@@ -240,7 +252,8 @@ def detail_albedo(
     n, c = base.shape[0], base.shape[2]
     sums = np.zeros((1 + c, n * n), np.float32)
     corner, face = mesh_normals(mesh)
-    floor = np.maximum(np.asarray(floor, np.float32), 1e-6)
+    floor = np.asarray(floor, np.float64).copy()
+    floor[:, :2] = np.maximum(floor[:, :2], 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
     m = len(cameras)
     done = 0.0
@@ -266,8 +279,9 @@ def detail_albedo(
             if rr.size:
                 uv = b.uv[rr, cc]
                 pos = None if sun is None else b.position[rr, cc]
-                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos)
-                q = photo[r0 + rr, cc] / a
+                values = photo[r0 + rr, cc]
+                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos, values)
+                q = values / a
                 # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
                 # (division_start's): dark pixels, whose quotient carries the most noise, count least.
                 w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
