@@ -311,8 +311,11 @@ def dark_floor_bounds(
 
 
 def raised(shade: np.ndarray, values: np.ndarray, bounds) -> np.ndarray:
-    """The shading raised to each pixel's floor (:func:`floored_where_dark`), ``bounds`` as
-    :func:`dark_floor_bounds` gives them."""
+    """The shading raised to each pixel's floor of :func:`floored_where_dark`.
+
+    ``bounds`` is ``(low, high, brightest)`` as :func:`dark_floor_bounds` gives it; without a brightest albedo
+    (a black photo) the floor is ``high`` everywhere.
+    """
     low, high, brightest = bounds
     if not brightest > 0:
         return np.maximum(shade, high)

@@ -74,6 +74,8 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
     s = t @ np.asarray(sigma_view, np.float32).T
     if floor is None:
         return s
+    if values is None:
+        raise ValueError("shading: a floor follows the pixels' values; none were given")
     for c in range(s.shape[1]):
         s[:, c] = raised(s[:, c], values[:, c], floor[c])
     return s
