@@ -52,9 +52,9 @@ def test_full_resolution_detail_beats_the_working_resolution_on_a_fine_albedo(tm
     e_off, n_off = texture_rmse(rep_off.albedo_path, gt)
     e_on, n_on = texture_rmse(rep_on.albedo_path, gt)
     assert min(n_off, n_on) > 0.5 * np.count_nonzero(gt[..., 3] > 0.5)
-    # Measured R / G / B: working resolution 0.277 / 0.252 / 0.216 (43242 texels), detail 0.217 / 0.204 / 0.189
-    # (44372 texels).
-    assert np.mean(e_on) < 0.9 * np.mean(e_off), (e_on, e_off)
+    # Measured R / G / B: working resolution 0.253 / 0.235 / 0.208, detail 0.220 / 0.210 / 0.196 (with the fixed
+    # shading floor, before 02595e8: working resolution 0.259 / 0.242 / 0.221, detail 0.219 / 0.210 / 0.198).
+    assert np.mean(e_on) < 0.95 * np.mean(e_off), (e_on, e_off)
 
 
 def test_photos_that_fit_the_working_resolution_skip_the_stage(tmp_path):
