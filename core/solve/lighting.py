@@ -322,22 +322,22 @@ def raised(shade: np.ndarray, values: np.ndarray, bounds) -> np.ndarray:
     return np.maximum(shade, np.clip(np.maximum(values, 0.0) / brightest, low, high))
 
 
-def floored_where_dark(shade: np.ndarray, values: np.ndarray, **bounds) -> np.ndarray:
+def floored_where_dark(shade: np.ndarray, values: np.ndarray) -> np.ndarray:
     """The shading raised as by :func:`floored`, but less where the photo is dark as well.
 
     The floor guards the division by the lighting against its dark mistakes: a pixel shaded far darker than its
     photo shows would take a blown-up albedo. A fixed floor also lifts the true shadows (a sun's, which the
     sun term draws) and darkens their albedo. Here each pixel's floor is the shading at which its own value
     gives the brightest albedo of the well-lit pixels, kept between :data:`SHADOW_FLOOR` and
-    :data:`SHADING_FLOOR` times the median (:func:`dark_floor_bounds`, whose parameters ``bounds`` passes on):
-    a dark mistake under a bright pixel is held as before, a shadow under a dark pixel keeps more of its shading.
+    :data:`SHADING_FLOOR` times the median (:func:`dark_floor_bounds`): a dark mistake under a bright pixel is
+    held as before, a shadow under a dark pixel keeps more of its shading.
 
     Parameters
     ----------
     shade, values : (P,) arrays
         The pixels' shading and their photo's value (one channel).
     """
-    return raised(shade, values, dark_floor_bounds(shade, values, **bounds))
+    return raised(shade, values, dark_floor_bounds(shade, values))
 
 
 def division_start(d, sigma: np.ndarray, channels=None, floor: float | None = None) -> np.ndarray:
