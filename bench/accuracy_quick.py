@@ -187,7 +187,8 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
 
 
 def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
-    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking).
+    """The texture-domain problem :func:`core.pipeline.compute` builds (without clipped-pixel masking; with the
+    clipped pixels, whose highlights the albedo stage leaves out).
 
     With ``sun_direction`` the transfer has the sun's term as its last column, as the pipeline's has where
     it found a sun there.
@@ -217,6 +218,7 @@ def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
         view_weight=[b.view_weight for b in bakes],
         names=[v.name for v in inputs.views],
         transfer=transfer,
+        clipped=[v.clipped for v in inputs.views],
     )
 
 

@@ -325,6 +325,7 @@ def compute(
             uv=uvs,
             view_weight=weights,
             names=[v.name for v in inputs.views],
+            clipped=[v.clipped for v in inputs.views],
         )
         result = None
         lam, variation, lighting = opt.lam, None, opt.lighting

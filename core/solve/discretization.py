@@ -59,6 +59,7 @@ import scipy.sparse as sp
 from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels
 from ..parallel import start, thread_map
+from .highlights import clipped_regions
 from .problem import Problem, stacked_rows
 from .sh import sh_basis
 from .spmv import PairNormal, scatter_add
@@ -90,6 +91,8 @@ class Discretization:
     rho_start: np.ndarray | None  # (n, C) float32 starting reflectance; None: made on first use (rho0)
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
+    # (P,) int32: the pixel's region of clipped pixels (core.solve.highlights.clipped_regions), 0 unclipped
+    clipped_region: np.ndarray | None = None
 
     @property
     def n_views(self) -> int:
@@ -217,6 +220,11 @@ def _masked_pixels(problem: Problem):
     return offsets, np.concatenate(values).astype(np.float32), stacked_rows(nus)
 
 
+def _clipped_regions(problem: Problem):
+    """(P,) int32 regions of clipped pixels over the masked pixels, or None (:func:`clipped_regions`)."""
+    return None if problem.clipped is None else clipped_regions(problem.clipped, problem.masks)
+
+
 def _difference_rows(a, b, coef_b=None):
     """Rows ``x[a] - sum_k coef_b[:, k] x[b[:, k]]`` as (columns, values), each of shape (rows, k + 1)."""
     a = np.asarray(a, dtype=np.intp)
@@ -310,6 +318,7 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         n_tv=n_tv,
         base=np.concatenate(base),
         rho_start=values.copy(),
+        clipped_region=_clipped_regions(problem),
     )
 
 
@@ -368,10 +377,11 @@ def texture_domain(
         )
     size = problem.texture.size
     offsets, values, nu = _masked_pixels(problem)
+    region = _clipped_regions(problem)
     tex_obs, pix_obs, w_obs = _splats(problem, offsets, nearest=data_model == "nearest", threads=threads)
     if data_model == "merged":
-        offsets, values, nu, tex_obs, pix_obs, w_obs = _merged_per_view(
-            offsets, values, nu, tex_obs, pix_obs, w_obs, size
+        offsets, values, nu, tex_obs, pix_obs, w_obs, region = _merged_per_view(
+            offsets, values, nu, tex_obs, pix_obs, w_obs, size, region
         )
     seen_count = np.bincount(tex_obs, weights=w_obs, minlength=size * size)
     texels = np.flatnonzero(seen_count > 0)
@@ -404,6 +414,7 @@ def texture_domain(
         rho_start=None,
         texel_index=texels,
         obs_matrix=obs_matrix,
+        clipped_region=region,
     )
     return d
 
@@ -436,15 +447,16 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False, thread
     return tex_obs, np.concatenate(pix_obs), np.concatenate(w_obs).astype(np.float64)
 
 
-def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size):
+def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size, region=None):
     """The splats of each view summed per texel into one virtual pixel: its weighted mean value and transfer.
 
     ``pix_obs`` runs view by view (as :func:`_splats` makes it); ``size`` is the texture's. Returns the
-    virtual pixels' offsets per view, values and transfer, and one observation of each: texel, pixel and
-    summed weight.
+    virtual pixels' offsets per view, values and transfer, one observation of each (texel, pixel and summed
+    weight), and their clipped regions if ``region`` (per pixel) is given: a virtual pixel with a clipped pixel
+    in it is in that pixel's region (the highest-numbered, if several).
     """
     new_offsets = np.zeros_like(offsets)
-    vals, nus, texs, ws = [], [], [], []
+    vals, nus, texs, ws, regions = [], [], [], [], []
     bounds = np.searchsorted(pix_obs, offsets)
     group_of = np.zeros(size * size, np.intp)
     for v in range(len(offsets) - 1):
@@ -460,6 +472,10 @@ def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size):
         merge = sp.csr_matrix((weights, (group, pix_obs[lo:hi] - a)), shape=(texels.size, b - a))
         vals.append(merge @ values[a:b])
         nus.append(merge @ nu[a:b])
+        if region is not None:
+            r = np.zeros(texels.size, np.int32)
+            np.maximum.at(r, group, region[pix_obs[lo:hi]])
+            regions.append(r)
         texs.append(texels)
         ws.append(wsum)
         new_offsets[v + 1] = new_offsets[v] + texels.size
@@ -471,6 +487,7 @@ def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size):
         np.concatenate(texs),
         np.arange(n),
         np.concatenate(ws),
+        np.concatenate(regions) if region is not None else None,
     )
 
 

@@ -96,6 +96,10 @@ class Problem:
         (:class:`core.geometry.sun.SunLight`) as the last column, whose
         coefficient the solver keeps >= 0.
         Default: the paper's ``nu`` of the normals.
+    clipped : list of (H, W) bool arrays, optional
+        Pixels of 8-bit photos that clipped in some channel (:func:`core.io.photos.clipped_pixels`): their
+        values are lower bounds of the light that reached the camera. None for a view (a float photo) or
+        for all: none clipped.
     """
 
     images: list
@@ -107,6 +111,7 @@ class Problem:
     view_weight: list | None = None
     names: list = field(default_factory=list)
     transfer: list | None = None
+    clipped: list | None = None
 
     def __post_init__(self):
         m = len(self.images)
@@ -121,6 +126,7 @@ class Problem:
             ("normals", self.normals),
             ("uv", self.uv),
             ("view_weight", self.view_weight),
+            ("clipped", self.clipped),
         ):
             if seq is not None and len(seq) != m:
                 _fail(f"problem: {len(seq)} {what} for {m} images")
@@ -165,6 +171,16 @@ class Problem:
                 wm = w[mask]
                 if not np.isfinite(wm).all() or wm.min() < 0:
                     _fail(f"{v}: view_weight inside the mask must be finite and >= 0")
+        if self.clipped is not None and all(c is None for c in self.clipped):
+            self.clipped = None
+        if self.clipped is not None:
+            self.clipped = [
+                np.zeros(img.shape[:2], bool) if c is None else np.asarray(c, dtype=bool)
+                for c, img in zip(self.clipped, self.images)
+            ]
+            for i, (c, img) in enumerate(zip(self.clipped, self.images)):
+                if c.shape != img.shape[:2]:
+                    _fail(f"view {i} ({self.names[i]}): clipped shape {c.shape}, expected {img.shape[:2]}")
         if self.transfer is not None:
             self._check_transfer()
         if self.correspondences is not None:

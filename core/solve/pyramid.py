@@ -114,6 +114,7 @@ def coarsen(problem: Problem, texture: bool = True) -> Problem | None:
         view_weight=half(problem.view_weight),
         names=list(problem.names),
         transfer=half_rows(problem.transfer),
+        clipped=half(problem.clipped),
     )
 
 

@@ -847,10 +847,13 @@ def _view_maps(problem, d: Discretization, rho: np.ndarray) -> list:
     if d.domain == "image":
         pix_rho = rho
     else:
-        wsum = np.bincount(d.obs_pixel, weights=d.obs_weight, minlength=d.nu.shape[0])
+        # A pixel whose observations all weigh 0 (a left-out highlight, a grazing view) takes their plain mean.
+        unweighted = np.bincount(d.obs_pixel, weights=d.obs_weight, minlength=d.nu.shape[0]) == 0
+        w = np.where(unweighted[d.obs_pixel], 1.0, d.obs_weight)
+        wsum = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
         rho_o = d.gather(rho)
         pix_rho = np.stack(
-            [np.bincount(d.obs_pixel, weights=d.obs_weight * rho_o[:, c], minlength=d.nu.shape[0]) for c in range(C)],
+            [np.bincount(d.obs_pixel, weights=w * rho_o[:, c], minlength=d.nu.shape[0]) for c in range(C)],
             axis=1,
         )
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -26,6 +26,7 @@ from ..progress import check_cancel, sub_progress
 from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
+from .highlights import without_highlights
 from .lighting import division_start, floored_where_dark
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
 from .solver import (
@@ -282,6 +283,7 @@ def solve_albedo(
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )
     t_build = time.perf_counter() - t_build0
+    d = without_highlights(d)
     if rho0 is None:
         rho0 = _start(d, sigma, half)
         half = None

@@ -1,0 +1,113 @@
+"""Clipped highlights: the clipped pixels of 8-bit photos that the other views show to be a highlight.
+
+A clipped pixel (:func:`core.io.photos.clipped_pixels`) holds less than the light that reached the camera. Where
+the albedo is bright, it clips in every view that sees it; a specular highlight clips in the one or two views that
+see it mirrored, and there the clipped value, divided by the diffuse shading, gives an albedo several times too
+bright. So each connected region of clipped pixels in a photo is judged by the other views of its texels: its
+observations whose texel another view sees unclipped vote for a highlight, those whose texel another view sees
+clipped vote for an albedo (each by its weight). A region is an albedo when it has albedo votes and at least as
+many as highlight votes; otherwise, and when no other view sees its texels, it is a highlight, and the albedo
+stage leaves its observations out: its texels take their neighbours' albedo through the TV term.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import scipy.ndimage as ndi
+
+__all__ = ["clipped_regions", "highlight_observations", "highlights", "without_highlights"]
+
+
+def clipped_regions(clipped, masks) -> np.ndarray | None:
+    """The connected regions of clipped pixels in each photo, over the masked pixels.
+
+    Parameters
+    ----------
+    clipped, masks : lists of (H, W) bool arrays
+        Per view, the clipped pixels and the pixels that see the surface.
+
+    Returns
+    -------
+    (P,) int32 array or None
+        Per masked pixel (view by view, row-major, as :mod:`core.solve.discretization` orders them), its
+        region's number, unique over all views, or 0 where it is not clipped; None when no pixel is clipped.
+    """
+    labels, count = [], 0
+    for c, m in zip(clipped, masks):
+        # 8-connected: a highlight's one-pixel diagonal steps are one region.
+        lab, k = ndi.label(c & m, structure=np.ones((3, 3), bool))
+        lab = lab[m].astype(np.int32)
+        labels.append(np.where(lab > 0, lab + count, 0).astype(np.int32))
+        count += k
+    return np.concatenate(labels) if count else None
+
+
+def highlight_observations(d) -> np.ndarray:
+    """Which observations of ``d`` lie in a clipped region that the other views show to be a highlight.
+
+    Parameters
+    ----------
+    d : core.solve.discretization.Discretization
+        In the texture domain (where views share unknowns), with ``clipped_region`` (None: no observation is)
+        and one unknown per observation (``obs_unknown``); otherwise none is.
+
+    Returns
+    -------
+    (O,) bool array
+    """
+    if d.clipped_region is None or d.obs_unknown is None or d.domain != "texture":
+        return np.zeros(d.obs_pixel.size, bool)
+    return highlights(d.from_pixels(d.clipped_region), d.obs_unknown, d.obs_view, d.obs_weight, d.n_views)
+
+
+def highlights(region, texel, view, weight, n_views) -> np.ndarray:
+    """The vote of the module docstring over observations: which lie in a region that is a highlight.
+
+    Parameters
+    ----------
+    region : (O,) int array
+        Each observation's clipped region (:func:`clipped_regions`), 0 where not clipped.
+    texel, view : (O,) int arrays
+        The texel (any numbering) and the view of each observation.
+    weight : (O,) array
+        Its vote's weight.
+    n_views : int
+
+    Returns
+    -------
+    (O,) bool array
+    """
+    clipped = region > 0
+    m = int(n_views)
+    # (texel, view) pairs, as one key: which views see each texel clipped, and which unclipped.
+    key = np.asarray(texel, np.int64) * m + view
+    seen_clipped = np.unique(key[clipped])
+    seen_unclipped = np.unique(key[~clipped])
+    n = int(key.max()) // m + 1 if key.size else 0
+    views_clipped = np.bincount(seen_clipped // m, minlength=n)
+    views_unclipped = np.bincount(seen_unclipped // m, minlength=n)
+    idx = np.flatnonzero(clipped)
+    t, k = key[idx] // m, key[idx]
+    own_unclipped = np.isin(k, seen_unclipped)  # this view sees the texel unclipped too (another pixel)
+    other_unclipped = views_unclipped[t] - own_unclipped > 0
+    other_clipped = views_clipped[t] > 1
+    w = np.asarray(weight, np.float64)[idx]
+    n_regions = int(region.max()) + 1 if region.size else 1
+    highlight = np.bincount(region[idx], weights=w * other_unclipped, minlength=n_regions)
+    albedo = np.bincount(region[idx], weights=w * other_clipped, minlength=n_regions)
+    is_highlight = ~((albedo > 0) & (albedo >= highlight))
+    is_highlight[0] = False
+    return is_highlight[region]
+
+
+def without_highlights(d):
+    """``d`` with the weight of its :func:`highlight_observations` set to 0 (``d`` itself if there are none).
+
+    The unknowns stay: one that only highlights see is left to the TV term.
+    """
+    drop = highlight_observations(d)
+    if not drop.any():
+        return d
+    return replace(d, obs_weight=np.where(drop, 0.0, d.obs_weight).astype(np.float32))
