@@ -231,7 +231,8 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
     photos = [v.photo for v in inputs.views]
     floor = shading_floors(sigma, normals, uvs, masks, photos, cells, sun, positions)
     weights = [b.view_weight for b in bakes]
-    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions)
+    clipped = None if opt.mask_clipped else [v.clipped for v in inputs.views]
+    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions, clipped)
     views = inputs.views
 
     def load(i):

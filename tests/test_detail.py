@@ -14,7 +14,7 @@ from core.io.photos import downscale
 from core.pipeline import Options, compute
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
-from core.texture.detail import detail_albedo
+from core.texture.detail import agreement, detail_albedo
 
 N = 256  # texture
 FULL = (480, 360)  # photo size
@@ -192,6 +192,41 @@ def test_detail_takes_one_photo_at_a_time_and_drops_a_highlight(scene):
     assert texels.size > 100
     # Measured: 0.048 there (0.040 over all texels); 1.13 when the highlight's view is not weighed down.
     assert np.median(err.reshape(-1, 3)[texels]) < 0.1, np.median(err.reshape(-1, 3)[texels])
+
+
+def test_a_clipped_highlight_no_other_view_sees_takes_the_least_agreement(scene):
+    mesh, albedo, sigma, cams, photos = scene
+    bakes = [bake_view(c, mesh) for c in cams]
+    h, w = FULL[1], FULL[0]
+    yy, xx = np.mgrid[0:h, 0:w]
+    spot = (xx - w / 2) ** 2 + (yy - h / 2) ** 2 <= 15**2
+    lit = [p.copy() for p in photos]
+    level = float(np.quantile(np.concatenate([p[b.mask] for p, b in zip(photos, bakes)]), 0.995))
+    lit[0][spot & bakes[0].mask] = level  # a highlight, clipped
+    clipped = [np.all(p >= level, axis=2) & b.mask for p, b in zip(lit, bakes)]
+    # No other view sees the spot's surface (and a margin around it): there the median has only view 0.
+    centre = bakes[0].position[spot & bakes[0].mask]
+    reach = 1.5 * np.max(np.linalg.norm(centre - centre.mean(axis=0), axis=1))
+    masks = [bakes[0].mask] + [
+        b.mask & (np.linalg.norm(b.position - centre.mean(axis=0), axis=2) > reach) for b in bakes[1:]
+    ]
+    args = (
+        lit,
+        masks,
+        [b.uv for b in bakes],
+        [b.normal for b in bakes],
+        np.stack([sigma] * len(cams)),
+        [b.view_weight for b in bakes],
+        np.tile([0.05, 0.1, 1.0], (3, 1)),
+    )
+    blind = agreement(*args)
+    told = agreement(*args, clipped=clipped)
+    hot = spot & masks[0]
+    assert np.median(blind[0][hot]) > 0.5  # the median cannot tell it from the albedo
+    assert np.all(told[0][hot] <= 1e-3)
+    # Elsewhere the weights are as they were.
+    assert np.array_equal(blind[0][masks[0] & ~hot], told[0][masks[0] & ~hot])
+    assert all(np.array_equal(a, b) for a, b in zip(blind[1:], told[1:]))
 
 
 def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):

@@ -35,6 +35,7 @@ from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
+from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
 from .fuse import fuse_views
 
@@ -107,14 +108,18 @@ def _log_ratio(q, b):
     return np.sqrt(np.mean(e * e, axis=1))
 
 
-def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None) -> list:
+def agreement(
+    photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None, clipped=None
+) -> list:
     """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
 
     Each pixel's own albedo (its value over its floored shading) is compared with the weighted median of all
     views' own albedos in its texel of a coarse reference texture (:func:`core.texture.fuse.fuse_views`, whose
     median a highlight or a misregistered edge in one view does not move); the log ratio e (RMS over the
     channels) gives Tukey's biweight ``(1 - min(e / s, 1)^2)^2``, at least a small floor, with s 4.685 robust
-    standard deviations of e over all pixels of all views (at least 0.1).
+    standard deviations of e over all pixels of all views (at least 0.1). Clipped pixels in a highlight
+    (:mod:`core.solve.highlights`, judged on the reference texture's texels) take the floor, as the albedo stage
+    leaves them out: where no other view sees their texels, the median cannot tell them.
 
     Parameters
     ----------
@@ -126,6 +131,8 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, su
     cells : OcclusionGrid, optional
     sun, positions : SunLight and the views' (H, W, 3) world points, optional
         As :func:`shading`.
+    clipped : list of (H, W) bool arrays (or None per view), optional
+        The working-resolution pixels that hold a clipped photo pixel.
 
     Returns
     -------
@@ -148,10 +155,22 @@ def agreement(photos, masks, uvs, normals, sigma, weights, floor, cells=None, su
         errors.append(_log_ratio(q[m], interpolate(flat, idx, w)))
     pooled = np.concatenate(errors) if errors else np.zeros(0)
     scale = max(_SCALE_SIGMAS * 1.4826 * float(np.median(pooled)) if pooled.size else 0.0, _SCALE_MIN)
-    out = []
-    for m, e in zip(masks, errors):
+    agree = np.maximum((1.0 - np.minimum(pooled / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
+    if clipped is not None and any(c is not None for c in clipped):
+        region = clipped_regions([np.zeros(m.shape, bool) if c is None else c for c, m in zip(clipped, masks)], masks)
+        if region is not None:
+            texel = np.concatenate([texel_index(uv[m], size) for uv, m in zip(uvs, masks)]).astype(np.int64)
+            off = texel < 0  # a UV off the texture: a texel of its own, that no other view sees
+            texel[off] = size * size + np.arange(np.count_nonzero(off))
+            view = np.repeat(np.arange(len(masks)), [np.count_nonzero(m) for m in masks])
+            weight = np.concatenate([w[m] for w, m in zip(weights, masks)])
+            agree[highlights(region, texel, view, weight, len(masks))] = _LEAST_AGREEMENT
+    out, start = [], 0
+    for m in masks:
         a = np.zeros(m.shape, np.float32)
-        a[m] = np.maximum((1.0 - np.minimum(e / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
+        k = np.count_nonzero(m)
+        a[m] = agree[start : start + k]
+        start += k
         out.append(a)
     return out
 
