@@ -57,9 +57,21 @@ def highlight_observations(d) -> np.ndarray:
     -------
     (O,) bool array
     """
+    out = np.zeros(d.obs_pixel.size, bool)
     if d.clipped_region is None or d.obs_unknown is None or d.domain != "texture":
-        return np.zeros(d.obs_pixel.size, bool)
-    return highlights(d.from_pixels(d.clipped_region), d.obs_unknown, d.obs_view, d.obs_weight, d.n_views)
+        return out
+    # Only the clipped observations and the others on their unknowns take part: no array over all of them
+    # but one of bools.
+    clipped = d.from_pixels(d.clipped_region > 0)
+    touched = np.zeros(d.n_unknowns, bool)
+    touched[d.obs_unknown[clipped]] = True
+    sel = np.flatnonzero(clipped | touched[d.obs_unknown])
+    pixel = d.obs_pixel[sel]
+    view_of_pixel = np.repeat(np.arange(d.n_views, dtype=np.int32), np.diff(d.pixel_offsets))
+    out[sel] = highlights(
+        d.clipped_region[pixel], d.obs_unknown[sel], view_of_pixel[pixel], d.obs_weight[sel], d.n_views
+    )
+    return out
 
 
 def highlights(region, texel, view, weight, n_views) -> np.ndarray:
@@ -81,15 +93,20 @@ def highlights(region, texel, view, weight, n_views) -> np.ndarray:
     """
     clipped = region > 0
     m = int(n_views)
-    # (texel, view) pairs, as one key: which views see each texel clipped, and which unclipped.
-    key = np.asarray(texel, np.int64) * m + view
-    seen_clipped = np.unique(key[clipped])
-    seen_unclipped = np.unique(key[~clipped])
-    n = int(key.max()) // m + 1 if key.size else 0
+    texel = np.asarray(texel, np.int64)
+    idx = np.flatnonzero(clipped)
+    n = int(texel.max()) + 1 if texel.size else 0
+    touched = np.zeros(n, bool)
+    touched[texel[idx]] = True
+    # (texel, view) pairs, as one key: which views see each texel clipped, and which unclipped (only the
+    # texels some clipped observation has: a few of them, so the sort is short).
+    key_clipped = texel[idx] * m + np.asarray(view)[idx]
+    others = np.flatnonzero(~clipped & touched[texel])
+    seen_clipped = np.unique(key_clipped)
+    seen_unclipped = np.unique(texel[others] * m + np.asarray(view)[others])
     views_clipped = np.bincount(seen_clipped // m, minlength=n)
     views_unclipped = np.bincount(seen_unclipped // m, minlength=n)
-    idx = np.flatnonzero(clipped)
-    t, k = key[idx] // m, key[idx]
+    t, k = texel[idx], key_clipped
     own_unclipped = np.isin(k, seen_unclipped)  # this view sees the texel unclipped too (another pixel)
     other_unclipped = views_unclipped[t] - own_unclipped > 0
     other_clipped = views_clipped[t] > 1
