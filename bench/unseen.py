@@ -1,4 +1,4 @@
-"""Twenty-two scenes made to check the defaults: new pairings of the fixtures' meshes, albedos and lights.
+"""Twenty-seven scenes made to check the defaults: new pairings of the fixtures' meshes, albedos and lights.
 
 Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
 cores), into ``build/bench/unseen/`` (not kept in the repository)::
@@ -7,7 +7,8 @@ cores), into ``build/bench/unseen/`` (not kept in the repository)::
     .venv/bin/python bench/accuracy_quick.py --fixtures build/bench/unseen --texture-size 0 [--no-ceiling]
 
 The 13 fixtures chose the defaults; these check them on scenes they were not chosen on (the albedo stage's floor was
-chosen on the first 17 as well, and checked on the last five; docs/measurements.md).
+chosen on the first 17 as well, and checked on the next five; the rule for clipped highlights was made on those 22,
+and checked on the last five, all with 8-bit photos and a Principled material; docs/measurements.md).
 """
 
 from __future__ import annotations
