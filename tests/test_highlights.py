@@ -12,22 +12,27 @@ from core.solve.solver import SolverParams
 from core.solve.stages import solve_albedo
 
 
-def test_regions_are_numbered_over_all_views_in_the_masked_pixels_order():
-    mask = np.ones((4, 5), bool)
+def test_regions_are_numbered_over_all_views_in_the_masked_pixels_order_with_their_rims():
+    mask = np.ones((6, 7), bool)
     mask[0, 0] = False
-    a = np.zeros((4, 5), bool)
-    a[1:3, 1] = True  # one region
-    a[3, 3] = a[2, 4] = True  # one more: diagonal neighbours are connected
-    b = np.zeros((4, 5), bool)
+    a = np.zeros((6, 7), bool)
+    a[2:4, 1] = True  # one region
+    a[4, 4] = a[3, 5] = True  # one more: diagonal neighbours are connected
+    b = np.zeros((6, 7), bool)
     b[0, 0] = True  # outside the mask: not a region
-    b[0, 4] = True
+    b[0, 6] = True
     regions = clipped_regions([a, b], [mask, mask])
-    first, second = regions[:19], regions[19:]
-    assert first[mask[mask]].size == 19
-    assert set(np.unique(first)) == {0, 1, 2} and set(np.unique(second)) == {0, 3}
-    assert first[a[mask]].min() > 0 and np.count_nonzero(first) == a[mask].sum()
-    assert np.count_nonzero(second) == 1
-    assert clipped_regions([np.zeros((4, 5), bool)] * 2, [mask, mask]) is None
+    n = int(mask.sum())
+    first, second = (np.zeros((6, 7), int), np.zeros((6, 7), int))
+    first[mask], second[mask] = regions[:n], regions[n:]
+    assert regions.size == 2 * n
+    assert set(np.unique(first[a])) == {1, 2} and np.all(first[~a] <= 0)
+    assert set(np.unique(second[b & mask])) == {3} and np.all(second[~b] <= 0)
+    # The rim: the unclipped pixels next to a region, marked with minus its number.
+    assert first[1, 1] == first[3, 2] == first[2, 0] == -1 and first[5, 4] == first[2, 5] == first[3, 6] == -2
+    assert first[1, 0] == 0 and first[5, 5] == 0 and first[2, 3] == 0  # diagonal: not the rim
+    assert second[1, 6] == second[0, 5] == -3 and second[1, 5] == 0
+    assert clipped_regions([np.zeros((6, 7), bool)] * 2, [mask, mask]) is None
 
 
 def _texel(uv, n):
@@ -86,7 +91,11 @@ def test_a_highlight_one_photo_shows_is_left_out_and_an_albedo_every_photo_clips
     others = clipped & ~in_disc[pixel_of]
     assert others.sum() > 50
     assert drop[others].mean() < 0.35, drop[others].mean()
-    assert not drop[~clipped].any()
+    # Unclipped observations go only as a highlight's rim: next to it in its own photo.
+    rim = d.clipped_region[pixel_of] < 0
+    assert not drop[~clipped & ~rim].any()
+    ring = _in_view_0(ndi.binary_dilation(disc) & ~disc & problem.masks[0], problem.masks)[pixel_of]
+    assert ring.any() and drop[ring].all()
 
 
 def test_the_albedo_under_a_highlight_comes_from_the_other_views():

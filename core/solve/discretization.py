@@ -91,7 +91,7 @@ class Discretization:
     rho_start: np.ndarray | None  # (n, C) float32 starting reflectance; None: made on first use (rho0)
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
-    # (P,) int32: the pixel's region of clipped pixels (core.solve.highlights.clipped_regions), 0 unclipped
+    # (P,) int32: the pixel's region of clipped pixels, minus that of its rim, or 0 (highlights.clipped_regions)
     clipped_region: np.ndarray | None = None
 
     @property
@@ -453,7 +453,7 @@ def _merged_per_view(offsets, values, nu, tex_obs, pix_obs, w_obs, size, region=
     ``pix_obs`` runs view by view (as :func:`_splats` makes it); ``size`` is the texture's. Returns the
     virtual pixels' offsets per view, values and transfer, one observation of each (texel, pixel and summed
     weight), and their clipped regions if ``region`` (per pixel) is given: a virtual pixel with a clipped pixel
-    in it is in that pixel's region (the highest-numbered, if several).
+    in it is in that pixel's region (the highest-numbered, if several); rims are not carried.
     """
     new_offsets = np.zeros_like(offsets)
     vals, nus, texs, ws, regions = [], [], [], [], []
