@@ -106,26 +106,23 @@ def highlights(region, texel, view, weight, n_views) -> np.ndarray:
     """
     region = np.asarray(region)
     clipped = region > 0
-    m = int(n_views)
-    texel = np.asarray(texel, np.int64)
     idx = np.flatnonzero(clipped)
     if not idx.size:
         return np.zeros(region.size, bool)
-    n = int(texel.max()) + 1 if texel.size else 0
-    touched = np.zeros(n, bool)
+    texel, view = np.asarray(texel, np.int64), np.asarray(view, np.intp)
+    # The texels some clipped observation has, numbered 0..k-1; then which views see each of them clipped, and
+    # which unclipped (rims included: they are not clipped), as (k, n_views) marks.
+    touched = np.zeros(int(texel.max()) + 1, bool)
     touched[texel[idx]] = True
-    # (texel, view) pairs, as one key: which views see each texel clipped, and which unclipped (only the
-    # texels some clipped observation has: a few of them, so the sort is short).
-    key_clipped = texel[idx] * m + np.asarray(view)[idx]
-    others = np.flatnonzero(~clipped & touched[texel])  # rims included: they are not clipped
-    seen_clipped = np.unique(key_clipped)
-    seen_unclipped = np.unique(texel[others] * m + np.asarray(view)[others])
-    views_clipped = np.bincount(seen_clipped // m, minlength=n)
-    views_unclipped = np.bincount(seen_unclipped // m, minlength=n)
-    t, k = texel[idx], key_clipped
-    own_unclipped = np.isin(k, seen_unclipped)  # this view sees the texel unclipped too (another pixel)
-    other_unclipped = views_unclipped[t] - own_unclipped > 0
-    other_clipped = views_clipped[t] > 1
+    number = np.cumsum(touched, dtype=np.int32) - 1
+    others = np.flatnonzero(~clipped & touched[texel])
+    seen_clipped = np.zeros((int(number[-1]) + 1, int(n_views)), bool)
+    seen_unclipped = np.zeros_like(seen_clipped)
+    t, v = number[texel[idx]], view[idx]
+    seen_clipped[t, v] = True
+    seen_unclipped[number[texel[others]], view[others]] = True
+    other_unclipped = seen_unclipped.sum(axis=1)[t] - seen_unclipped[t, v] > 0
+    other_clipped = seen_clipped.sum(axis=1)[t] > 1
     w = np.asarray(weight, np.float64)[idx]
     n_regions = int(np.abs(region).max()) + 1
     highlight = np.bincount(region[idx], weights=w * other_unclipped, minlength=n_regions)
