@@ -275,7 +275,7 @@ SPEC = (
         "bool",
         False,
         "Leave out clipped pixels",
-        "Leave the pixels at an 8-bit photo's ceiling out of the solve",
+        "Leave all pixels at an 8-bit photo's ceiling out of the solve (off: where other photos show a highlight)",
         flag="--mask-clipped",
     ),
     Option(
