@@ -91,7 +91,8 @@ class Discretization:
     rho_start: np.ndarray | None  # (n, C) float32 starting reflectance; None: made on first use (rho0)
     texel_index: np.ndarray | None = None  # texture domain: flat texel of each unknown
     obs_matrix: sp.csr_matrix | None = None  # (O, n) float32 A, when observations mix unknowns
-    # (P,) int32: the pixel's region of clipped pixels, minus that of its rim, or 0 (highlights.clipped_regions)
+    # Texture domain: (P,) int32, the pixel's region of clipped pixels, minus that of its rim, or 0
+    # (core.solve.highlights.clipped_regions); None if none clipped
     clipped_region: np.ndarray | None = None
 
     @property
@@ -318,7 +319,6 @@ def image_domain(problem: Problem, normalise_correspondences: bool = True) -> Di
         n_tv=n_tv,
         base=np.concatenate(base),
         rho_start=values.copy(),
-        clipped_region=_clipped_regions(problem),
     )
 
 

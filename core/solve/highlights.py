@@ -9,7 +9,8 @@ clipped vote for an albedo (each by its weight). A region is an albedo when it h
 many as highlight votes; otherwise, and when no other view sees its texels, it is a highlight, and the albedo
 stage leaves its observations out, with those of its rim (the unclipped pixels next to it, :data:`RIM`: a
 highlight fades out over them, still far brighter than the albedo): its texels take their neighbours' albedo
-through the TV term.
+through the TV term. The detail stage gives the same pixels its least agreement
+(:func:`core.texture.detail.agreement`).
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ def highlight_observations(d) -> np.ndarray:
     Returns
     -------
     (O,) bool array
+        The observations of the highlights and of their rims.
     """
     out = np.zeros(d.obs_pixel.size, bool)
     if d.clipped_region is None or d.obs_unknown is None or d.domain != "texture":
