@@ -1,6 +1,7 @@
 """The detail stage (core.texture.detail): the albedo again from the photos at full resolution, one at a time."""
 
 import weakref
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -229,6 +230,44 @@ def test_a_clipped_highlight_no_other_view_sees_takes_the_least_agreement(scene)
     rest = masks[0] & ~ndi.binary_dilation(hot)  # the highlight's rim goes with it
     assert np.array_equal(blind[0][rest], told[0][rest])
     assert all(np.array_equal(a, b) for a, b in zip(blind[1:], told[1:]))
+
+
+def test_the_pipeline_leaves_out_a_clipped_highlight_only_one_photo_sees(scene):
+    # At the working resolution (no detail stage): the views carry their clipped pixels, as the add-on reads them.
+    mesh, albedo, sigma, cams, photos = scene
+    h, w = FULL[1], FULL[0]
+    yy, xx = np.mgrid[0:h, 0:w]
+    spot = (xx - w / 2) ** 2 + (yy - h / 2) ** 2 <= 20**2
+    level = float(max(p.max() for p in photos))
+    lit = [p.copy() for p in photos]
+    lit[0][spot & (lit[0].max(axis=2) > 0)] = level
+    views, bakes = [], []
+    for i, (cam, photo) in enumerate(zip(cams, lit)):
+        small, _ = downscale(photo, WORKING_MP)
+        clipped = downscale(np.all(photo >= level, axis=2)[..., None].astype(np.float32), WORKING_MP)[0][..., 0] > 0
+        cam_small = resized(cam, small.shape[1], small.shape[0])
+        views.append(ViewInput(name=f"cam{i}", camera=cam_small, photo=small, source="test", clipped=clipped))
+        bakes.append(bake_view(cam_small, mesh))
+    # No other photo sees the highlight's surface.
+    hot = views[0].clipped & bakes[0].mask
+    centre = bakes[0].position[hot].mean(axis=0)
+    reach = 1.5 * np.max(np.linalg.norm(bakes[0].position[hot] - centre, axis=1))
+    for b in bakes[1:]:
+        b.mask = b.mask & (np.linalg.norm(b.position - centre, axis=2) > reach)
+    idx, wts = bilinear_texels(bakes[0].uv[hot], np.ones((N, N), bool))
+    texels = np.unique(idx[wts > 0.25])
+
+    def error(clipped):
+        vs = [replace(v, clipped=v.clipped if clipped else None) for v in views]
+        out = compute(Options(texture_size=N), SceneInputs(object_name="band", mesh=mesh, views=vs), bakes)
+        seen = out.seen
+        scale = np.sum(out.albedo[seen] * albedo[seen]) / np.sum(out.albedo[seen] ** 2)
+        return np.median(np.abs(scale * out.albedo - albedo).reshape(-1, 3)[texels])
+
+    assert texels.size > 20
+    told, blind = error(True), error(False)
+    # Measured: 0.17 against 0.62 (the median error of the texels under the highlight).
+    assert told < 0.4 * blind, (told, blind)
 
 
 def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
