@@ -100,10 +100,14 @@ class Discretization:
         return len(self.pixel_offsets) - 1
 
     @property
+    def pixel_view(self) -> np.ndarray:
+        """(P,) intp: the view of each pixel (made on each use)."""
+        return np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
+
+    @property
     def obs_view(self) -> np.ndarray:
         """(O,) intp: the view of each observation (made on each use; only the Gauss-Newton step needs it)."""
-        view_of_pixel = np.repeat(np.arange(self.n_views), np.diff(self.pixel_offsets))
-        return view_of_pixel[self.obs_pixel]
+        return self.pixel_view[self.obs_pixel]
 
     def __post_init__(self):
         self._matrices = None

@@ -35,7 +35,7 @@ def clipped_regions(clipped, masks) -> np.ndarray | None:
     Parameters
     ----------
     clipped, masks : lists of (H, W) bool arrays
-        Per view, the clipped pixels and the pixels that see the surface.
+        Per view, the clipped pixels (None: none, a float photo) and the pixels that see the surface.
 
     Returns
     -------
@@ -47,6 +47,9 @@ def clipped_regions(clipped, masks) -> np.ndarray | None:
     """
     labels, count = [], 0
     for c, m in zip(clipped, masks):
+        if c is None:
+            labels.append(np.zeros(np.count_nonzero(m), np.int32))
+            continue
         # 8-connected: a highlight's one-pixel diagonal steps are one region.
         lab, k = ndi.label(c & m, structure=np.ones((3, 3), bool))
         lab = np.where(lab > 0, lab + count, 0).astype(np.int32)
@@ -81,9 +84,8 @@ def highlight_observations(d) -> np.ndarray:
     touched[d.obs_unknown[clipped]] = True
     sel = np.flatnonzero(clipped | touched[d.obs_unknown] | d.from_pixels(d.clipped_region < 0))
     pixel = d.obs_pixel[sel]
-    view_of_pixel = np.repeat(np.arange(d.n_views, dtype=np.int32), np.diff(d.pixel_offsets))
     out[sel] = highlights(
-        d.clipped_region[pixel], d.obs_unknown[sel], view_of_pixel[pixel], d.obs_weight[sel], d.n_views
+        d.clipped_region[pixel], d.obs_unknown[sel], d.pixel_view[pixel], d.obs_weight[sel], d.n_views
     )
     return out
 

@@ -156,15 +156,14 @@ def agreement(
     pooled = np.concatenate(errors) if errors else np.zeros(0)
     scale = max(_SCALE_SIGMAS * 1.4826 * float(np.median(pooled)) if pooled.size else 0.0, _SCALE_MIN)
     agree = np.maximum((1.0 - np.minimum(pooled / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
-    if clipped is not None and any(c is not None for c in clipped):
-        region = clipped_regions([np.zeros(m.shape, bool) if c is None else c for c, m in zip(clipped, masks)], masks)
-        if region is not None:
-            texel = np.concatenate([texel_index(uv[m], size) for uv, m in zip(uvs, masks)]).astype(np.int64)
-            off = texel < 0  # a UV off the texture: a texel of its own, that no other view sees
-            texel[off] = size * size + np.arange(np.count_nonzero(off))
-            view = np.repeat(np.arange(len(masks)), [np.count_nonzero(m) for m in masks])
-            weight = np.concatenate([w[m] for w, m in zip(weights, masks)])
-            agree[highlights(region, texel, view, weight, len(masks))] = _LEAST_AGREEMENT
+    region = None if clipped is None else clipped_regions(clipped, masks)
+    if region is not None:
+        texel = np.concatenate([texel_index(uv[m], size) for uv, m in zip(uvs, masks)]).astype(np.int64)
+        off = texel < 0  # a UV off the texture: a texel of its own, that no other view sees
+        texel[off] = size * size + np.arange(np.count_nonzero(off))
+        view = np.repeat(np.arange(len(masks)), [np.count_nonzero(m) for m in masks])
+        weight = np.concatenate([w[m] for w, m in zip(weights, masks)])
+        agree[highlights(region, texel, view, weight, len(masks))] = _LEAST_AGREEMENT
     out, start = [], 0
     for m in masks:
         a = np.zeros(m.shape, np.float32)
