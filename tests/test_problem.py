@@ -52,6 +52,18 @@ def test_shape_mismatch():
     _expect("channels", images=lambda kw: kw["images"].__setitem__(1, np.ones((6, 7, 1))))
 
 
+def test_clipped_pixels_must_match_their_photos():
+    imgs, masks, nrms = _views()
+    with pytest.raises(ValueError, match=r"view 1.*clipped shape \(6, 6\), expected \(6, 7\)"):
+        Problem(imgs, masks, nrms, clipped=[None, np.zeros((6, 6), bool)])
+    with pytest.raises(ValueError, match="1 clipped for 2 images"):
+        Problem(imgs, masks, nrms, clipped=[np.zeros((6, 7), bool)])
+    # A view without clipping (a float photo) has none; no view with any: no clipping at all.
+    p = Problem(imgs, masks, nrms, clipped=[None, np.ones((6, 7), bool)])
+    assert not p.clipped[0].any() and p.clipped[1].all()
+    assert Problem(imgs, masks, nrms, clipped=[None, None]).clipped is None
+
+
 def test_correspondence_indices_out_of_range():
     imgs, masks, nrms = _views()
     for corr, match in [
