@@ -95,7 +95,7 @@ def averaged_ends(d, c: int, params, ends) -> Channel:
 
 
 def tilt_search(problem, first: Result, params, cancel=None) -> Result:
-    """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
+    """The lighting stage's result, each channel moved along the ambiguity (module docstring).
 
     Parameters
     ----------
@@ -149,11 +149,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
             ends = sorted([*ends, (ch.e, i, ch, a)], key=lambda end: end[:2])
             del ends[max(params.light_tilt_average, 1) :]
         lowest, tilt = ends[0][2], ends[0][3]
-        kept = (
-            lowest
-            if params.light_tilt_average <= 1
-            else averaged_ends(d, c, params, [e[2] for e in ends[: params.light_tilt_average]])
-        )
+        kept = lowest if len(ends) == 1 else averaged_ends(d, c, params, [end[2] for end in ends])
         return kept, {"tilt": tilt.tolist(), "energy_before": before, "energy_after": kept.e}
 
     with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
