@@ -6,13 +6,11 @@ photos each view has its own shading ``s_v``, but g is the surface's, so ``s_v g
 the same valley. The lighting stage's MM starts from rho = I, all of the photos' variation taken as albedo, and
 creeps along that valley, so it stops on the albedo's side of it. :func:`tilt_search` restarts each channel
 from its shading tilted by ``exp(a . n)`` for a set of vectors a (:func:`tilt_vectors`), each view's lighting
-refitted to the tilted shading by least squares and the albedo the photos divided by it, and iterates each start
-a few times. The energy is the one the lighting stage's second run minimises, with the albedo's changes of colour
+refitted to the tilted shading by least squares and the albedo the photos divided by it, iterates each start a
+few times, and keeps the one with the lowest energy; the untilted start is one of them, so the energy can only
+fall. The energy is the one the lighting stage's second run minimises, with the albedo's changes of colour
 freed (:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's
-edges, and the search would find it. Where the energy has several valleys of about the same depth, which one has
-the lowest is chaotic, so the few ends of lowest energy are averaged (:func:`averaged_ends`: each scaled to a
-mean shading of 1, the lightings averaged and the albedos by their geometric mean) and the average iterated
-twice more; with one end kept, the untilted start is among them and the energy can only fall.
+edges, and the search would find it.
 """
 
 from __future__ import annotations
@@ -31,7 +29,7 @@ from .problem import SUN_COLUMNS
 from .sh import view_normal_equations
 from .solver import Channel, Result, channel_threads, continued_result
 
-__all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "averaged_ends", "tilt_search"]
+__all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "tilt_search"]
 
 #: Lengths of the tilt vectors: ``exp(a . n)`` changes the shading by a factor ``exp(2 |a|)`` between opposite
 #: normals.
@@ -72,30 +70,8 @@ def tilted_lighting(d, sigma: np.ndarray, normals: np.ndarray, a: np.ndarray, gr
     return out
 
 
-#: MM iterations of the average of the search's ends (:func:`averaged_ends`).
-AVERAGE_ITER = 2
-
-
-def averaged_ends(d, c: int, params, ends) -> Channel:
-    """One channel started from the average of the :class:`Channel` ``ends``, iterated :data:`AVERAGE_ITER` times.
-
-    Each end is scaled to a mean shading of 1 over the observations (the scale is free between albedo and
-    lighting); the lightings are averaged, the albedos by their geometric mean.
-    """
-    w = d.obs_weight.astype(np.float64)
-    logs, sigmas = [], []
-    for ch in ends:
-        scale = float(np.dot(w, d.from_pixels(ch.shade)) / w.sum())
-        logs.append(np.log(np.maximum(ch.rho.astype(np.float64) * scale, 1e-6)))
-        sigmas.append(np.asarray(ch.sigma, np.float64) / scale)
-    out = Channel(d, c, params, np.exp(np.mean(logs, axis=0)).astype(np.float32), np.mean(sigmas, axis=0))
-    for _ in range(AVERAGE_ITER):
-        out.step()
-    return out
-
-
 def tilt_search(problem, first: Result, params, cancel=None) -> Result:
-    """The lighting stage's result, each channel moved along the ambiguity (module docstring).
+    """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
 
     Parameters
     ----------
@@ -104,8 +80,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     first : core.solve.solver.Result
         The lighting stage's first run on ``problem``.
     params : core.solve.solver.SolverParams
-        ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, the
-        ``light_tilt_average`` ends of lowest energy averaged (:func:`averaged_ends`), with
+        ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, with
         the lighting stage's model and TV weight, its TV rows weighted down across the changes of colour of
         ``first``'s albedo when ``light_edges > 0`` (:func:`core.solve.edges.with_edges_freed`): measured by
         plain TV, a lower energy is often a lighting that lowers the albedo's edges.
@@ -114,8 +89,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     Returns
     -------
     core.solve.solver.Result
-        With ``info["tilt"]``: per channel the tilt of lowest energy and the energies before and after, and the
-        seconds.
+        With ``info["tilt"]``: per channel the tilt kept and the energies before and after, and the seconds.
     """
     t0 = time.perf_counter()
     d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
@@ -131,8 +105,8 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
 
     def channel(c):
         sigma = np.asarray(first.sigma[:, c], np.float64)
-        ends, before = [], None
-        for i, a in enumerate(tilts):
+        best, before = None, None
+        for a in tilts:
             check_cancel(cancel)
             if np.any(a):
                 start = tilted_lighting(d, sigma, normals, a, gram)
@@ -145,12 +119,9 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
                 before = ch.e
             for _ in range(params.light_tilt_iter):
                 ch.step()
-            # Only the ends that may be averaged are held (each holds arrays over the observations).
-            ends = sorted([*ends, (ch.e, i, ch, a)], key=lambda end: end[:2])
-            del ends[max(params.light_tilt_average, 1) :]
-        lowest, tilt = ends[0][2], ends[0][3]
-        kept = lowest if len(ends) == 1 else averaged_ends(d, c, params, [end[2] for end in ends])
-        return kept, {"tilt": tilt.tolist(), "energy_before": before, "energy_after": kept.e}
+            if best is None or ch.e < best[0].e:
+                best = (ch, a)
+        return best[0], {"tilt": best[1].tolist(), "energy_before": before, "energy_after": best[0].e}
 
     with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
         found = list(pool.map(channel, range(C)))

@@ -168,11 +168,11 @@ class SolverParams:
         with its TV rows weighted down across the albedo edges it found
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
-    light_tilts, light_tilt_iter, light_tilt_average : int
+    light_tilts, light_tilt_iter : int
         Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its
         shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
-        ``light_tilt_iter`` times, and the ``light_tilt_average`` ends of lowest energy are averaged into the
-        one kept (1: the lowest alone; :func:`core.solve.ambiguity.tilt_search`); 0 tilts skips it.
+        ``light_tilt_iter`` times, and the lowest energy is kept (:func:`core.solve.ambiguity.tilt_search`);
+        0 tilts skips it.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
@@ -209,7 +209,6 @@ class SolverParams:
     light_edges: float = 0.003
     light_tilts: int = 6
     light_tilt_iter: int = 5
-    light_tilt_average: int = 3
     light_data_model: str = "nearest"
     light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
@@ -265,10 +264,10 @@ class SolverParams:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
-        if self.light_tilts < 0 or self.light_tilt_iter < 1 or self.light_tilt_average < 1:
+        if self.light_tilts < 0 or self.light_tilt_iter < 1:
             raise ValueError(
-                f"solver: light_tilts must be >= 0, light_tilt_iter and light_tilt_average >= 1, got "
-                f"{self.light_tilts}, {self.light_tilt_iter}, {self.light_tilt_average}"
+                f"solver: light_tilts must be >= 0 and light_tilt_iter >= 1, got {self.light_tilts}, "
+                f"{self.light_tilt_iter}"
             )
 
 
