@@ -77,12 +77,11 @@ def highlight_observations(d) -> np.ndarray:
     out = np.zeros(d.obs_pixel.size, bool)
     if d.clipped_region is None or d.obs_unknown is None or d.domain != "texture":
         return out
-    # Only the clipped observations, their rims and the others on their unknowns take part: no array over all
-    # of them but one of bools.
-    clipped = d.from_pixels(d.clipped_region > 0)
+    # Only the observations on the unknowns of clipped ones (those included) and the rims take part: no array
+    # over all of them but of bools.
     touched = np.zeros(d.n_unknowns, bool)
-    touched[d.obs_unknown[clipped]] = True
-    sel = np.flatnonzero(clipped | touched[d.obs_unknown] | d.from_pixels(d.clipped_region < 0))
+    touched[d.obs_unknown[d.from_pixels(d.clipped_region > 0)]] = True
+    sel = np.flatnonzero(touched[d.obs_unknown] | d.from_pixels(d.clipped_region < 0))
     pixel = d.obs_pixel[sel]
     out[sel] = highlights(
         d.clipped_region[pixel], d.obs_unknown[sel], d.pixel_view[pixel], d.obs_weight[sel], d.n_views
