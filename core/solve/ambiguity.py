@@ -8,9 +8,14 @@ creeps along that valley, so it stops on the albedo's side of it. :func:`tilt_se
 from its shading tilted by ``exp(a . n)`` for a set of vectors a (:func:`tilt_vectors`), each view's lighting
 refitted to the tilted shading by least squares and the albedo the photos divided by it, iterates each start a
 few times, and keeps the one with the lowest energy; the untilted start is one of them, so the energy can only
-fall. The energy is the one the lighting stage's second run minimises, with the albedo's changes of colour
-freed (:mod:`core.solve.edges`): under plain TV the lowest energy is often a lighting that lowers the albedo's
-edges, and the search would find it.
+fall. The untilted start continues the lighting stage's converged run, and a tilted one after a few
+iterations is still far above its own minimum, so under one light the ends of lowest energy are narrowed in
+rounds, each iterated further before the next comparison (successive halving, ``light_tilt_rounds``); without
+them the search rarely leaves the untilted start. Where the light moves, the rounds are skipped: on synthetic
+spheres they helped under one light and not under a moving one (docs/measurements.md). The energy is the one
+the lighting stage's second run minimises, with the albedo's changes of colour freed (:mod:`core.solve.edges`):
+under plain TV the lowest energy is often a lighting that lowers the albedo's edges, and the search would find
+it.
 """
 
 from __future__ import annotations
@@ -80,8 +85,9 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     first : core.solve.solver.Result
         The lighting stage's first run on ``problem``.
     params : core.solve.solver.SolverParams
-        ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, with
-        the lighting stage's model and TV weight, its TV rows weighted down across the changes of colour of
+        ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, the
+        lowest narrowed in ``light_tilt_rounds`` under one light, with the lighting stage's model and TV
+        weight, its TV rows weighted down across the changes of colour of
         ``first``'s albedo when ``light_edges > 0`` (:func:`core.solve.edges.with_edges_freed`): measured by
         plain TV, a lower energy is often a lighting that lowers the albedo's edges.
     cancel : callable() -> bool, optional
@@ -103,9 +109,13 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     tilts = tilt_vectors(params.light_tilts)
     has_data = d.scatter(d.obs_weight.astype(np.float64)) > 0
 
+    rounds = () if params.lighting == "per_view" else tuple(params.light_tilt_rounds)
+    # Only the ends the first round iterates are held (each holds arrays over the observations).
+    held = max([int(keep) for keep, _ in rounds[:1]] or [1])
+
     def channel(c):
         sigma = np.asarray(first.sigma[:, c], np.float64)
-        best, before = None, None
+        ends, before = [], None
         for a in tilts:
             check_cancel(cancel)
             if np.any(a):
@@ -119,9 +129,16 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
                 before = ch.e
             for _ in range(params.light_tilt_iter):
                 ch.step()
-            if best is None or ch.e < best[0].e:
-                best = (ch, a)
-        return best[0], {"tilt": best[1].tolist(), "energy_before": before, "energy_after": best[0].e}
+            ends = sorted([*ends, (ch, a)], key=lambda end: end[0].e)[:held]
+        for keep, iterations in rounds:
+            ends = ends[: int(keep)]
+            for ch, _ in ends:
+                for _ in range(int(iterations)):
+                    check_cancel(cancel)
+                    ch.step()
+            ends.sort(key=lambda end: end[0].e)
+        best, a = ends[0]
+        return best, {"tilt": a.tolist(), "energy_before": before, "energy_after": best.e}
 
     with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
         found = list(pool.map(channel, range(C)))

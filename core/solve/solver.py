@@ -173,6 +173,10 @@ class SolverParams:
         shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
         ``light_tilt_iter`` times, and the lowest energy is kept (:func:`core.solve.ambiguity.tilt_search`);
         0 tilts skips it.
+    light_tilt_rounds : tuple of (int, int)
+        Under one light (not ``lighting="per_view"``), before the lowest energy is kept, the search's ends are
+        narrowed in rounds: in each ``(keep, iterations)``, the ``keep`` ends of lowest energy are iterated
+        ``iterations`` more times, so that a tilted start is judged nearer its own minimum; () skips it.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
@@ -209,6 +213,7 @@ class SolverParams:
     light_edges: float = 0.003
     light_tilts: int = 6
     light_tilt_iter: int = 5
+    light_tilt_rounds: tuple = ((4, 15), (2, 30))
     light_data_model: str = "nearest"
     light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
@@ -268,6 +273,13 @@ class SolverParams:
             raise ValueError(
                 f"solver: light_tilts must be >= 0 and light_tilt_iter >= 1, got {self.light_tilts}, "
                 f"{self.light_tilt_iter}"
+            )
+        if not all(
+            isinstance(r, (tuple, list)) and len(r) == 2 and int(r[0]) >= 1 and int(r[1]) >= 0
+            for r in self.light_tilt_rounds
+        ):
+            raise ValueError(
+                f"solver: light_tilt_rounds must be pairs (keep >= 1, iterations >= 0), got {self.light_tilt_rounds}"
             )
 
 
