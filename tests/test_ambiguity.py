@@ -93,6 +93,7 @@ def test_the_tilt_search_runs_where_the_light_moves_between_photos():
         dict(light_tilt_rounds=((0, 15),)),
         dict(light_tilt_rounds=((4, -1),)),
         dict(light_tilt_rounds=(4, 15)),
+        dict(light_tilt_rounds=(("4", 15),)),
     ],
 )
 def test_the_tilt_settings_are_checked(bad):

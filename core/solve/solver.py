@@ -275,7 +275,11 @@ class SolverParams:
                 f"{self.light_tilt_iter}"
             )
         if not all(
-            isinstance(r, (tuple, list)) and len(r) == 2 and int(r[0]) >= 1 and int(r[1]) >= 0
+            isinstance(r, (tuple, list))
+            and len(r) == 2
+            and all(isinstance(x, (int, np.integer)) for x in r)
+            and r[0] >= 1
+            and r[1] >= 0
             for r in self.light_tilt_rounds
         ):
             raise ValueError(
