@@ -1,13 +1,15 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
-from core.solve.ambiguity import TILT_LENGTHS, tilt_vectors, tilted_lighting
+from core.solve.ambiguity import TILT_LENGTHS, tilt_search, tilt_vectors, tilted_lighting
 from core.solve.discretization import texture_domain
 from core.solve.lighting import shading, shading_error
 from core.solve.sh import view_normal_equations
-from core.solve.solver import SolverParams
+from core.solve.solver import SolverParams, solve_joint
 from core.solve.stages import solve
 
 
@@ -83,6 +85,24 @@ def test_the_tilt_search_runs_where_the_light_moves_between_photos():
     err_plain = np.mean(scaled_rmse(plain.texture, scene.albedo_texture, plain.seen))
     err_tilted = np.mean(scaled_rmse(tilted.texture, scene.albedo_texture, tilted.seen))
     assert err_tilted < 0.93 * err_plain
+
+
+def test_the_rounds_stay_within_max_iter_and_stop_where_the_energy_has_stopped_falling():
+    scene = sphere_scene(n_views=4, height=60, width=80, texture_size=32, n_cells=6, seed=1)
+    params = SolverParams(lam=5.0, lighting="coupled", max_iter=10).resolved()
+    first = solve_joint(scene.problem, params)
+
+    def checks(**changed):
+        # The search checks for a cancel once per start and channel, and before each iteration of its rounds.
+        calls = []
+        tilt_search(scene.problem, first, replace(params, **changed), cancel=lambda: calls.append(1))
+        return len(calls)
+
+    starts = 3 * len(tilt_vectors(params.light_tilts))
+    assert checks(max_iter=50, tol=0.0) == starts + 3 * (4 * 15 + 2 * 30)  # the default rounds in full
+    assert checks(max_iter=20, tol=0.0) == starts + 3 * 4 * 15  # 5 + 15: nothing left for the second round
+    assert checks(max_iter=5, tol=0.0) == starts
+    assert checks(max_iter=50, tol=1.0) == starts + 3 * (4 + 2)  # each end stops after one iteration
 
 
 @pytest.mark.parametrize(

@@ -109,9 +109,14 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
     tilts = tilt_vectors(params.light_tilts)
     has_data = d.scatter(d.obs_weight.astype(np.float64)) > 0
 
-    rounds = () if params.lighting == "per_view" else tuple(params.light_tilt_rounds)
+    # No end is iterated more than max_iter times in all, as no run of the solver is.
+    start_iter = min(params.light_tilt_iter, params.max_iter)
+    rounds, done = [], start_iter
+    for keep, iterations in () if params.lighting == "per_view" else params.light_tilt_rounds:
+        rounds.append((keep, min(iterations, params.max_iter - done)))
+        done += rounds[-1][1]
     # Only the ends the first round iterates are held (each holds arrays over the observations).
-    held = max([int(keep) for keep, _ in rounds[:1]] or [1])
+    held = rounds[0][0] if rounds else 1
 
     def channel(c):
         sigma = np.asarray(first.sigma[:, c], np.float64)
@@ -127,15 +132,18 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
             ch = Channel(d, c, params, rho0.astype(np.float32), start)
             if before is None:
                 before = ch.e
-            for _ in range(params.light_tilt_iter):
+            for _ in range(start_iter):
                 ch.step()
             ends = sorted([*ends, (ch, a)], key=lambda end: end[0].e)[:held]
         for keep, iterations in rounds:
-            ends = ends[: int(keep)]
+            ends = ends[:keep]
             for ch, _ in ends:
-                for _ in range(int(iterations)):
+                # An end whose energy has stopped falling (the solver's own test) is not iterated further.
+                for _ in range(iterations):
                     check_cancel(cancel)
-                    ch.step()
+                    prev = ch.e
+                    if prev - ch.step() <= params.tol * max(abs(prev), 1e-30):
+                        break
             ends.sort(key=lambda end: end[0].e)
         best, a = ends[0]
         return best, {"tilt": a.tolist(), "energy_before": before, "energy_after": best.e}

@@ -176,7 +176,9 @@ class SolverParams:
     light_tilt_rounds : tuple of (int, int)
         Under one light (not ``lighting="per_view"``), before the lowest energy is kept, the search's ends are
         narrowed in rounds: in each ``(keep, iterations)``, the ``keep`` ends of lowest energy are iterated
-        ``iterations`` more times, so that a tilted start is judged nearer its own minimum; () skips it.
+        ``iterations`` more times, so that a tilted start is judged nearer its own minimum; () skips it. An
+        end stops early where its energy has stopped falling (``tol``), and no end is iterated more than
+        ``max_iter`` times in all.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
