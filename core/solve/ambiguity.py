@@ -32,7 +32,7 @@ from .edges import with_edges_freed
 from .lighting import division_start, shading
 from .problem import SUN_COLUMNS
 from .sh import view_normal_equations
-from .solver import Channel, Result, channel_threads, continued_result
+from .solver import Channel, Result, channel_threads, continued_result, stalled
 
 __all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "tilt_search"]
 
@@ -142,7 +142,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
                 for _ in range(iterations):
                     check_cancel(cancel)
                     prev = ch.e
-                    if prev - ch.step() <= params.tol * max(abs(prev), 1e-30):
+                    if stalled(prev, ch.step(), params.tol):
                         break
             ends.sort(key=lambda end: end[0].e)
         best, a = ends[0]

@@ -784,6 +784,11 @@ def iteration_report(progress, max_iter: int):
     return report
 
 
+def stalled(prev: float, cur: float, tol: float) -> bool:
+    """The outer loop's stopping test: the energy changed by no more than ``tol`` of itself."""
+    return abs(prev - cur) <= tol * max(abs(prev), 1e-30)
+
+
 def iterate(channels, params: SolverParams, report, check_cancel, t0: float, done: int = 0, least=None, pool=None):
     """The outer MM loop over all channels; returns the energy history and its times since ``t0``.
 
@@ -806,7 +811,7 @@ def iterate(channels, params: SolverParams, report, check_cancel, t0: float, don
             elapsed.append(time.perf_counter() - t0)
             report(it, history[-1])
             prev, cur = history[-2], history[-1]
-            if it - done >= least and abs(prev - cur) <= params.tol * max(abs(prev), 1e-30):
+            if it - done >= least and stalled(prev, cur, params.tol):
                 break
     finally:
         if own:
