@@ -203,6 +203,12 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def improvement(project, ours) -> tuple[float, float, float]:
+    """``project / ours`` per scene (RMSE of each): its mean, geometric mean and least."""
+    ratio = np.asarray(project, dtype=np.float64) / np.asarray(ours, dtype=np.float64)
+    return float(ratio.mean()), float(np.exp(np.log(ratio).mean())), float(ratio.min())
+
+
 def summary(rows) -> str:
     """Per kind of row, over the fixtures: mean RMSE, and the mean, geometric mean and least of project / row."""
     lines = [
@@ -211,17 +217,17 @@ def summary(rows) -> str:
     ]
     keys = [k for k in dict.fromkeys(r.get("key") for r in rows) if k and k != "project"]
     for key in keys:
-        rel, rmse = [], []
+        base, rmse = [], []
         for r in rows:
             proj = next((p for p in rows if p["fixture"] == r["fixture"] and p.get("key") == "project"), None)
             if r.get("key") != key or not r.get("texture_rmse") or not proj or not proj.get("texture_rmse"):
                 continue
             rmse.append(np.mean(r["texture_rmse"]))
-            rel.append(np.mean(proj["texture_rmse"]) / rmse[-1])
-        if rel:
+            base.append(np.mean(proj["texture_rmse"]))
+        if rmse:
+            mean, geometric, least = improvement(base, rmse)
             lines.append(
-                f"| {key} | {len(rel)} | {np.mean(rmse):.4f} | {np.mean(rel):.2f}x | "
-                f"{np.exp(np.mean(np.log(rel))):.2f}x | {np.min(rel):.2f}x |"
+                f"| {key} | {len(rmse)} | {np.mean(rmse):.4f} | {mean:.2f}x | {geometric:.2f}x | {least:.2f}x |"
             )
     return "\n".join(lines)
 

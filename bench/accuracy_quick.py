@@ -42,7 +42,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from bench.accuracy import fixtures  # noqa: E402
+from bench.accuracy import fixtures, improvement  # noqa: E402
 from bench.headless import ROOT, commit, machine  # noqa: E402
 from core.evaluate.metrics import scaled_rmse  # noqa: E402
 from core.io.exr import read_exr  # noqa: E402
@@ -296,12 +296,11 @@ def main(argv=None):
         row = evaluate(name, d, size, sets, ceiling=not a.no_ceiling)
         print(line(row), flush=True)
         rows.append(row)
-    proj = np.mean([np.mean(r["project"]) for r in rows])
-    ours = np.mean([np.mean(r["ours"]) for r in rows])
-    ratios = [np.mean(r["project"]) / np.mean(r["ours"]) for r in rows]
+    proj = [np.mean(r["project"]) for r in rows]
+    ours = [np.mean(r["ours"]) for r in rows]
+    mean, _, least = improvement(proj, ours)
     print(
-        f"mean: project {proj:.4f}  ours {ours:.4f}  mean ratio x{np.mean(ratios):.2f}  "
-        f"min ratio x{np.min(ratios):.2f}",
+        f"mean: project {np.mean(proj):.4f}  ours {np.mean(ours):.4f}  mean ratio x{mean:.2f}  min ratio x{least:.2f}",
         flush=True,
     )
     if a.json:
