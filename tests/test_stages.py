@@ -218,6 +218,7 @@ def test_the_lighting_stage_runs_its_own_longer_extrapolation():
             levels=1,
             light_size=32,
             light_edges=0.0,
+            light_balance=0.0,  # measured without it (with it: 548, 361, 343)
             light_extrapolate=ext,
         )
         _, first = lighting_stage(scene.problem, params)
@@ -280,3 +281,56 @@ def test_the_albedo_stage_keeps_the_shadows_of_a_sun(monkeypatch):
     old, old_dark = errors()
     assert np.all(new_dark < 0.4 * old_dark), (new_dark, old_dark)
     assert np.all(new < 0.6 * old), (new, old)
+
+
+def _texel_totals(problem):
+    from core.geometry.texels import bilinear_texels
+
+    size = problem.texture.size
+    total = np.zeros(size * size)
+    for i, mask in enumerate(problem.masks):
+        flat, wts = bilinear_texels(problem.uv[i][mask], problem.texture.inside)
+        nearest = np.take_along_axis(flat, np.argmax(wts, axis=1)[:, None], axis=1)[:, 0]
+        total += np.bincount(nearest, weights=problem.view_weight[i][mask].astype(np.float64), minlength=size * size)
+    return total
+
+
+def test_the_lighting_stage_balances_the_weight_of_the_surface_seen_at_a_glance():
+    from core.solve.pyramid import with_texture_size
+    from core.solve.stages import LIGHT_BALANCE_CAP, balanced_for_lighting
+
+    # Cameras on two rings (elevations 0.35 and -0.25 rad): the poles are seen by few pixels, at a glance.
+    problem = with_texture_size(sphere_scene(n_views=6, height=90, width=120, texture_size=64, seed=4).problem, 16)
+    assert balanced_for_lighting(problem, 0.0) is problem
+    even = balanced_for_lighting(problem, 0.5)
+    assert all(np.array_equal(a, b) for a, b in zip(even.images, problem.images))
+    assert all(np.array_equal(a, b) for a, b in zip(even.masks, problem.masks))
+    before = np.concatenate([w[m] for w, m in zip(problem.view_weight, problem.masks)]).astype(np.float64)
+    after = np.concatenate([w[m] for w, m in zip(even.view_weight, even.masks)]).astype(np.float64)
+    np.testing.assert_allclose(after.sum(), before.sum(), rtol=1e-5)  # so the TV weight means what it did
+    ratio = after[before > 0] / before[before > 0]
+    assert 2 < ratio.max() / ratio.min() <= LIGHT_BALANCE_CAP**2 * (1 + 1e-5)  # moved, and within the bounds
+    # The texels' totals are nearer each other: the least-seen gain, the most-seen lose.
+    t0, t1 = _texel_totals(problem), _texel_totals(even)
+    seen = t0 > 0
+    low, high = seen & (t0 < np.quantile(t0[seen], 0.1)), seen & (t0 > np.quantile(t0[seen], 0.9))
+    assert np.all(t1[low] > t0[low]) and np.all(t1[high] < t0[high])
+    spread = lambda t: np.std(np.log(t[seen]))  # noqa: E731
+    assert spread(t1) < 0.7 * spread(t0), (spread(t1), spread(t0))  # 1.07 against 1.74 (power 0.5: half, capped)
+    assert SolverParams().light_balance == 0.5
+
+
+def test_the_balanced_lighting_stage_recovers_the_albedo_seen_at_a_glance_better():
+    # A textured sphere seen from two rings of cameras: its poles only at a glance. Measured (seed 2): all texels
+    # 0.165 -> 0.150, the texels beyond 55 degrees of latitude 0.170 -> 0.148 (untextured 0.175 -> 0.157 and
+    # 0.182 -> 0.157); on seeds 1 and 3 better too, by less.
+    scene = sphere_scene(n_views=6, height=90, width=120, texture_size=64, seed=2, noise=0.02, textured=True)
+    rows = np.arange(64)[:, None] + np.zeros(64)
+    polar = np.abs(0.5 - (rows + 0.5) / 64) * 180 > 55
+    errors = []
+    for balance in (0.0, 0.5):
+        params = SolverParams(lam=5.0, albedo_lam=1.0, lighting="coupled", light_size=32, light_balance=balance)
+        r = stages.solve_two_stage(scene.problem, params)
+        errors.append([np.mean(scaled_rmse(r.texture, scene.albedo_texture, r.seen & m)) for m in (True, polar)])
+    (plain_all, plain_polar), (even_all, even_polar) = errors
+    assert even_polar < 0.9 * plain_polar and even_all < 0.95 * plain_all, errors

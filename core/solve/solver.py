@@ -155,6 +155,12 @@ class SolverParams:
         Two stages, texture domain: while the lighting stage's texture has more than this many photo pixels on
         the mesh per texel, it keeps every other pixel of every other row (:func:`core.solve.pyramid.coarsen`);
         0 keeps them all.
+    light_balance : float
+        Two stages, texture domain: the lighting stage weighs each pixel by its view weight times
+        ``(m / W) ** light_balance``, W the view weight of all the pixels on its texel and m the median of W
+        over the texels (within 1/4 to 4 times; :func:`core.solve.stages.balanced_for_lighting`), so that the
+        surface the photos see only at a glancing angle (mostly facing away from the cameras) counts for more
+        in the lighting than its few pixels would make it; 0: each pixel by its view weight alone.
     light_extrapolate : float
         Two stages: ``extrapolate`` in the lighting stage. Its MM alternates the albedo and the lighting and runs
         to its iteration caps, where a longer step along the albedo's direction pays; the albedo stage (a convex
@@ -212,6 +218,7 @@ class SolverParams:
     albedo_adapt: bool = True
     light_size: int = 128
     light_pixels: float = 128.0
+    light_balance: float = 0.5
     light_edges: float = 0.003
     light_tilts: int = 6
     light_tilt_iter: int = 5
@@ -251,6 +258,7 @@ class SolverParams:
             "light_edges",
             "albedo_edges",
             "light_pixels",
+            "light_balance",
         ):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:

@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..geometry.texels import bilinear_texels
 from ..memory import release_free_memory
 from ..parallel import joined, start
 from ..progress import check_cancel, sub_progress
@@ -133,6 +134,47 @@ def thinned_for_lighting(problem, most: float):
             break
         problem = thin.on_layout(problem.texture)
     return problem
+
+
+#: :func:`balanced_for_lighting` changes no pixel's weight by more than this factor either way: a texel seen
+#: by one glancing pixel would otherwise weigh as much as one every photo sees head-on.
+LIGHT_BALANCE_CAP = 4.0
+
+
+def balanced_for_lighting(problem, power: float, cap: float = LIGHT_BALANCE_CAP):
+    """``problem`` with each pixel's view weight times ``(m / W) ** power``, held within ``[1 / cap, cap]``.
+
+    W is the view weight of all the pixels whose nearest texel is the pixel's, m the median of W over the
+    texels; the weights are then scaled to the sum they had, so that the TV weight means what it did. The
+    lighting's few coefficients per view are fitted to all of the surface at once, and the surface the photos
+    see only at a glancing angle, mostly facing down or away from the cameras, has few pixels of low weight:
+    without this its shading is what the rest of the surface extrapolates to, and its error goes into its
+    albedo (docs/measurements.md).
+    """
+    if power <= 0:
+        return problem
+    size = problem.texture.size
+    nearest, weights = [], []
+    for i, mask in enumerate(problem.masks):
+        flat, wts = bilinear_texels(problem.uv[i][mask], problem.texture.inside)
+        nearest.append(np.take_along_axis(flat, np.argmax(wts, axis=1)[:, None], axis=1)[:, 0])
+        w = np.ones(int(mask.sum())) if problem.view_weight is None else problem.view_weight[i][mask]
+        weights.append(np.where(wts.sum(axis=1) > 0, w.astype(np.float64), 0.0))
+    total = np.zeros(size * size)
+    for t, w in zip(nearest, weights):
+        total += np.bincount(t, weights=w, minlength=size * size)
+    seen = total > 0
+    if not seen.any():
+        return problem
+    factor = np.clip((np.median(total[seen]) / np.where(seen, total, 1.0)) ** power, 1.0 / cap, cap)
+    balanced = [w * factor[t] for t, w in zip(nearest, weights)]
+    scale = sum(w.sum() for w in weights) / max(sum(b.sum() for b in balanced), 1e-300)
+    view_weight = []
+    for mask, b in zip(problem.masks, balanced):
+        out = np.zeros(mask.shape, np.float32)
+        out[mask] = b * scale
+        view_weight.append(out)
+    return replace(problem, view_weight=view_weight)
 
 
 def _half_size_start(problem, sigma, params, progress, cancel, builds=None):
@@ -362,6 +404,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_problem = with_texture_size(problem, params.light_size)
     if params.domain == "texture" and params.light_pixels > 0:
         light_problem = thinned_for_lighting(light_problem, params.light_pixels)
+    if params.domain == "texture" and params.light_balance > 0:
+        light_problem = balanced_for_lighting(light_problem, params.light_balance)
     light_params = replace(params.resolved(), albedo_lam=None, extrapolate=params.light_extrapolate)
     if params.domain == "texture":
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
