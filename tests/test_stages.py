@@ -284,13 +284,12 @@ def test_the_albedo_stage_keeps_the_shadows_of_a_sun(monkeypatch):
 
 
 def _texel_totals(problem):
-    from core.geometry.texels import bilinear_texels
+    from core.geometry.texels import nearest_texel
 
     size = problem.texture.size
     total = np.zeros(size * size)
     for i, mask in enumerate(problem.masks):
-        flat, wts = bilinear_texels(problem.uv[i][mask], problem.texture.inside)
-        nearest = np.take_along_axis(flat, np.argmax(wts, axis=1)[:, None], axis=1)[:, 0]
+        nearest, _ = nearest_texel(problem.uv[i][mask], problem.texture.inside)
         total += np.bincount(nearest, weights=problem.view_weight[i][mask].astype(np.float64), minlength=size * size)
     return total
 

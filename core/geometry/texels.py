@@ -27,6 +27,7 @@ __all__ = [
     "uv_of_texel",
     "texel_index",
     "bilinear_texels",
+    "nearest_texel",
     "texture_layout",
     "pixel_matched_size",
     "uv_stretched",
@@ -179,6 +180,20 @@ def bilinear_texels(uv, valid):
     """
     row, col = texel_of_uv(uv, valid.shape[0])
     return masked_corners(col, row, valid)
+
+
+def nearest_texel(uv, valid):
+    """Of :func:`bilinear_texels`, the texel of largest weight around each UV point, and the weights' sum.
+
+    Returns
+    -------
+    index : (K,) intp array
+    weight : (K,) float32 array
+        1 where a ``valid`` texel is among the four, else 0.
+    """
+    flat, wts = bilinear_texels(uv, valid)
+    best = np.argmax(wts, axis=1)[:, None]
+    return np.take_along_axis(flat, best, axis=1)[:, 0], wts.sum(axis=1)
 
 
 def _check_mesh(tri_uv, tri_pos, tri_vert):

@@ -57,7 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.bilinear import masked_corners
-from ..geometry.texels import bilinear_texels
+from ..geometry.texels import bilinear_texels, nearest_texel
 from ..parallel import start, thread_map
 from .highlights import clipped_regions
 from .problem import Problem, stacked_rows
@@ -434,10 +434,10 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False, thread
 
     def view(i):
         mask = problem.masks[i]
-        flat, wts = bilinear_texels(problem.uv[i][mask], inside)
         if nearest:  # one column: the texel of largest weight, with the pixel's whole weight
-            best = np.argmax(wts, axis=1)[:, None]
-            flat, wts = np.take_along_axis(flat, best, axis=1), wts.sum(axis=1, keepdims=True)
+            flat, wts = (a[:, None] for a in nearest_texel(problem.uv[i][mask], inside))
+        else:
+            flat, wts = bilinear_texels(problem.uv[i][mask], inside)
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), flat.shape[1])

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..geometry.texels import bilinear_texels
+from ..geometry.texels import nearest_texel
 from ..memory import release_free_memory
 from ..parallel import joined, start
 from ..progress import check_cancel, sub_progress
@@ -156,10 +156,10 @@ def balanced_for_lighting(problem, power: float, cap: float = LIGHT_BALANCE_CAP)
     size = problem.texture.size
     nearest, weights = [], []
     for i, mask in enumerate(problem.masks):
-        flat, wts = bilinear_texels(problem.uv[i][mask], problem.texture.inside)
-        nearest.append(np.take_along_axis(flat, np.argmax(wts, axis=1)[:, None], axis=1)[:, 0])
+        texel, landed = nearest_texel(problem.uv[i][mask], problem.texture.inside)
+        nearest.append(texel)
         w = np.ones(int(mask.sum())) if problem.view_weight is None else problem.view_weight[i][mask]
-        weights.append(np.where(wts.sum(axis=1) > 0, w.astype(np.float64), 0.0))
+        weights.append(np.where(landed > 0, w.astype(np.float64), 0.0))
     total = np.zeros(size * size)
     for t, w in zip(nearest, weights):
         total += np.bincount(t, weights=w, minlength=size * size)
