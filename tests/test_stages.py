@@ -333,3 +333,9 @@ def test_the_balanced_lighting_stage_recovers_the_albedo_seen_at_a_glance_better
         errors.append([np.mean(scaled_rmse(r.texture, scene.albedo_texture, r.seen & m)) for m in (True, polar)])
     (plain_all, plain_polar), (even_all, even_polar) = errors
     assert even_polar < 0.9 * plain_polar and even_all < 0.95 * plain_all, errors
+
+
+def test_the_lighting_stages_balance_must_be_finite_and_not_negative():
+    for bad in (-0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="light_balance"):
+            SolverParams(light_balance=bad).check()
