@@ -224,6 +224,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     sun: spec_property("sun")
     align_photos: spec_property("align_photos")
     mask_clipped: spec_property("mask_clipped")
+    fill_outlines: spec_property("fill_outlines")
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
     working_res: spec_property("working_res_mp")
@@ -266,6 +267,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             sun=self.sun,
             align_photos=self.align_photos,
             mask_clipped=self.mask_clipped,
+            fill_outlines=self.fill_outlines,
             mu=self.mu,
             max_iter=self.max_iter,
             working_res_mp=self.working_res,

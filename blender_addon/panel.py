@@ -36,6 +36,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     sun: spec_property("sun")
     align_photos: spec_property("align_photos")
     mask_clipped: spec_property("mask_clipped")
+    fill_outlines: spec_property("fill_outlines")
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
     working_res: spec_property("working_res_mp", clamp=True)
@@ -59,6 +60,7 @@ _SAME = (
     "sun",
     "align_photos",
     "mask_clipped",
+    "fill_outlines",
     "mu",
     "max_iter",
     "working_res",
@@ -115,6 +117,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         sub.prop(s, "occlusion")
         sub.prop(s, "sun")
         sub.prop(s, "mask_clipped")
+        sub.prop(s, "fill_outlines")
         if s.method == "image":
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")

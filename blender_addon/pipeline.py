@@ -296,6 +296,7 @@ def _report_json(prepared, computed, files, times):
             if prepared.alignment is None
             else {"cameras_moved": int(prepared.alignment.applied.sum()), "mesh_fits": prepared.alignment.mesh_fits},
             "mask_clipped": opt.mask_clipped,
+            "fill_outlines": {"texels": computed.info.get("outline_texels", 0)} if opt.fill_outlines else None,
             "mu": opt.mu,
             "max_iter": opt.max_iter,
             "working_res_mp": opt.working_res_mp,

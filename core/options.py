@@ -279,6 +279,15 @@ SPEC = (
         flag="--mask-clipped",
     ),
     Option(
+        "fill_outlines",
+        "bool",
+        True,
+        "Fill outline texels",
+        "Texels the photos show only at the object's outline, where the background blends into the pixels, take "
+        "their albedo from the texels around them (off: from those pixels)",
+        flag="--fill-outlines",
+    ),
+    Option(
         "mu",
         "float",
         _SOLVER.mu,
@@ -442,6 +451,7 @@ RUN_FIELDS = (
     "sun",
     "align_photos",
     "mask_clipped",
+    "fill_outlines",
     "mu",
     "max_iter",
     "working_res_mp",

@@ -20,7 +20,7 @@ from .scene import SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams
 from .solve.stages import solve
-from .texture import fill_unseen, fuse_views, sample_texture
+from .texture import fill_unseen, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
@@ -221,8 +221,12 @@ def _find_sun(problem, inputs, bakes, lighting, opt, progress):
     return sun, info
 
 
-def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
-    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel, outline=None):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution.
+
+    The texels of ``outline`` (:func:`core.texture.fill.outline_only`) keep ``albedo``, filled from their
+    neighbours.
+    """
     from .texture.detail import agreement, detail_albedo, shading_floors
 
     report = stage_progress(progress, "detail", DETAIL_STAGES)
@@ -254,6 +258,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
         use_clipped=bool(opt.mask_clipped),
         progress=report,
         cancel=cancel,
+        keep=outline,
     )
 
 
@@ -366,9 +371,14 @@ def compute(
     t = time.perf_counter()
     fuse_progress = stage_progress(progress, "fuse", stages)
     fuse_progress(0.0, "texture")
+    outline = None
     if opt.method == "texture":
         seen = np.asarray(result.seen, dtype=bool)
-        albedo = fill_unseen(result.texture, seen, layout.inside, margin=4, threads=opt.threads)
+        known = seen
+        if opt.fill_outlines:
+            outline = outline_only(uvs, masks, weights, seen, used=solve_masks)
+            known = seen & ~outline
+        albedo = fill_unseen(result.texture, known if known.any() else seen, layout.inside, 4, opt.threads)
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
@@ -385,7 +395,7 @@ def compute(
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(
-            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel, outline
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)
@@ -409,6 +419,7 @@ def compute(
             occlusion=bool(opt.occlusion),
             occlusion_seconds=occlusion_s,
             detail=detail,
+            outline_texels=0 if outline is None else int(outline.sum()),
             **({} if sun_info is None else {"sun": sun_info}),
         ),
     )

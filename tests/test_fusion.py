@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.ndimage as ndi
 
 import core.texture.fill as fill
 import core.texture.fuse as fusion
@@ -256,3 +257,41 @@ def test_weighted_median_paths_match_reference(monkeypatch, k):
     for pairwise_max in (0, 100):
         monkeypatch.setattr(fusion, "_PAIRWISE_MAX_K", pairwise_max)
         np.testing.assert_array_equal(fusion._weighted_median(count, start, vals, w), expect)
+
+
+def _pixel_per_texel_view(n, mask):
+    """A view whose pixel (r, c) lands on texel (r, c) of an n x n texture."""
+    rows, cols = np.mgrid[0:n, 0:n]
+    uv = np.stack([(cols + 0.5) / n, 1.0 - (rows + 0.5) / n], axis=-1).astype(np.float32)
+    return uv, mask
+
+
+def test_outline_only_finds_the_texels_seen_only_at_the_outline():
+    from core.texture.fill import outline_only
+
+    n = 10
+    mask = np.zeros((n, n), bool)
+    mask[2:8, 0:7] = True  # touches the photo's left border, where it is cut off, not outlined
+    uv, _ = _pixel_per_texel_view(n, mask)
+    found = outline_only([uv], [mask], None, mask)
+    ring = mask & ~ndi.binary_erosion(mask, border_value=1)
+    np.testing.assert_array_equal(found, ring)
+    assert not found[4, 0] and found[2, 0] and found[4, 6]
+    # A second photo that sees the top rows' texels off its outline gives them a clean view.
+    other = np.zeros((n, n), bool)
+    other[1:4, 0:n] = True
+    found = outline_only([uv, uv], [mask, other], None, mask | other)
+    clean = ndi.binary_erosion(mask, border_value=1) | ndi.binary_erosion(other, border_value=1)
+    np.testing.assert_array_equal(found, (mask | other) & ~clean)
+    assert not found[2, 3] and found[7, 3] and found[1, 3]
+    # Pixels the solve left out (clipped) count for nothing.
+    used = mask.copy()
+    used[4, 3] = False
+    assert outline_only([uv], [mask], None, mask, used=[used])[4, 3]
+    assert not outline_only([uv], [mask], None, mask & ~used, used=[used]).any()
+    assert not outline_only([uv], [mask], None, mask, evidence=0).any()
+    # A little clean weight, against the median texel's, is not enough.
+    weight = np.ones((n, n), np.float32)
+    weight[4, 3] = 0.01
+    assert outline_only([uv], [mask], [weight], mask, evidence=0.02)[4, 3]
+    assert not outline_only([uv], [mask], [weight], mask, evidence=0.005)[4, 3]

@@ -28,6 +28,8 @@ __all__ = [
     "texel_index",
     "bilinear_texels",
     "nearest_texel",
+    "texel_totals",
+    "texel_weights",
     "texture_layout",
     "pixel_matched_size",
     "uv_stretched",
@@ -450,6 +452,56 @@ def _seam_pairs(q, tri_vert, inside, n):
     ok = oka & okb & (fa != fb)
     pairs = np.stack([np.minimum(fa[ok], fb[ok]), np.maximum(fa[ok], fb[ok])], axis=1)
     return np.unique(pairs, axis=0).astype(np.intp)
+
+
+def texel_totals(uvs, masks, weights, valid):
+    """Each view's masked pixels on their nearest texels (:func:`nearest_texel`), and their weight per texel.
+
+    Parameters
+    ----------
+    uvs : list of (H, W, 2) arrays
+    masks : list of (H, W) bool arrays
+    weights : list of (H, W) arrays or None
+        Each pixel's weight (None: 1).
+    valid : (N, N) bool array
+        The texels a pixel may land on.
+
+    Returns
+    -------
+    texels : list of (P_v,) intp arrays
+        The nearest texel (flat) of each of view v's masked pixels, in mask order.
+    pixel_weights : list of (P_v,) float64 arrays
+        Its weight, 0 where no valid texel is near.
+    total : (N * N,) float64 array
+        The weight of all the pixels per texel.
+    """
+    n = np.asarray(valid).shape[0]
+    texels, pixel_weights = [], []
+    total = np.zeros(n * n)
+    for i, mask in enumerate(masks):
+        texel, landed = nearest_texel(uvs[i][mask], valid)
+        w = np.ones(texel.size) if weights is None else weights[i][mask].astype(np.float64)
+        w = np.where(landed > 0, w, 0.0)
+        texels.append(texel)
+        pixel_weights.append(w)
+        total += np.bincount(texel, weights=w, minlength=n * n)
+    return texels, pixel_weights, total
+
+
+def texel_weights(uvs, masks, weights, valid) -> np.ndarray:
+    """The weight of each view's masked pixels per texel, ``(N * N,)`` float64, each pixel spread over its four
+    texels by its bilinear weights (:func:`bilinear_texels`), as the solve's observations are.
+
+    ``weights`` is a list of ``(H, W)`` arrays, or None for 1.
+    """
+    n = np.asarray(valid).shape[0]
+    total = np.zeros(n * n)
+    for i, mask in enumerate(masks):
+        flat, wts = bilinear_texels(uvs[i][mask], valid)
+        if weights is not None:
+            wts = wts * weights[i][mask][:, None]
+        total += np.bincount(flat.ravel(), weights=wts.ravel().astype(np.float64), minlength=n * n)
+    return total
 
 
 def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:

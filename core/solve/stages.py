@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..geometry.texels import nearest_texel
+from ..geometry.texels import texel_totals
 from ..memory import release_free_memory
 from ..parallel import joined, start
 from ..progress import check_cancel, sub_progress
@@ -153,16 +153,7 @@ def balanced_for_lighting(problem, power: float, cap: float = LIGHT_BALANCE_CAP)
     """
     if power <= 0:
         return problem
-    size = problem.texture.size
-    nearest, weights = [], []
-    for i, mask in enumerate(problem.masks):
-        texel, landed = nearest_texel(problem.uv[i][mask], problem.texture.inside)
-        nearest.append(texel)
-        w = np.ones(int(mask.sum())) if problem.view_weight is None else problem.view_weight[i][mask]
-        weights.append(np.where(landed > 0, w.astype(np.float64), 0.0))
-    total = np.zeros(size * size)
-    for t, w in zip(nearest, weights):
-        total += np.bincount(t, weights=w, minlength=size * size)
+    nearest, weights, total = texel_totals(problem.uv, problem.masks, problem.view_weight, problem.texture.inside)
     seen = total > 0
     if not seen.any():
         return problem

@@ -2,12 +2,13 @@
 texture sampled back at the pixels.
 """
 
-from .fill import fill_unseen
+from .fill import fill_unseen, outline_only
 from .fuse import fuse_views
 from .sample import sample_texture
 
 __all__ = [
     "fuse_views",
     "fill_unseen",
+    "outline_only",
     "sample_texture",
 ]

@@ -224,6 +224,7 @@ def detail_albedo(
     cancel=None,
     band_pixels: int = _BAND_PIXELS,
     sun=None,
+    keep=None,
 ):
     """The albedo texture from the photos at their full resolution, one photo at a time.
 
@@ -256,6 +257,9 @@ def detail_albedo(
         Pixels per band of the bake.
     sun : core.geometry.sun.SunLight, optional
         The sun term, as in the solve (the last of ``sigma``'s coefficients).
+    keep : (N, N) bool array, optional
+        Texels that keep ``base``: no pixel lands in them, and they count as reached where ``base`` was seen
+        (the texels the photos show only at the outline, :func:`core.texture.fill.outline_only`).
 
     Returns
     -------
@@ -275,6 +279,9 @@ def detail_albedo(
     floor = np.asarray(floor, np.float64).copy()
     floor[:, :2] = np.maximum(floor[:, :2], 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
+    kept = None if keep is None else np.asarray(keep, bool)
+    if kept is not None:
+        inside_flat = inside_flat & ~kept.ravel()
     m = len(cameras)
     done = 0.0
     total = float(sum(cam.width * cam.height for cam in cameras)) or 1.0
@@ -317,4 +324,8 @@ def detail_albedo(
         del photo, clipped  # let it go before the next one is read
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
-    return _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
+    albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
+    if kept is not None:
+        albedo[kept] = np.asarray(base, np.float32)[kept]
+        reached |= kept
+    return albedo, reached

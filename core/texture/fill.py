@@ -1,6 +1,7 @@
 """Texels that no view saw, filled: harmonic (Laplace) interpolation inside each UV island, then a
 few texels of dilation past the island borders (so that mipmaps and filtering do not bleed the
-background in). Used after both the texture-domain solve and the image-domain fusion.
+background in). Used after both the texture-domain solve and the image-domain fusion; after the
+former also for the texels the photos show only at the object's outline (:func:`outline_only`).
 """
 
 from __future__ import annotations
@@ -10,10 +11,15 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..geometry.texels import texel_weights
 from ..parallel import thread_map
 from ..solve.cg import pcg
 
-__all__ = ["fill_unseen"]
+__all__ = ["fill_unseen", "outline_only", "OUTLINE_EVIDENCE"]
+
+#: :func:`outline_only`: a texel whose pixels off the outlines weigh less than this fraction of the median
+#: texel's pixels is filled from its neighbours.
+OUTLINE_EVIDENCE = 0.05
 
 # Unknowns up to which the Laplace system is factorised directly; above it the solve recurses on a
 # 2x coarser grid and refines with CG (a direct 2D solve grows superlinearly).
@@ -235,3 +241,37 @@ def _check_args(tex, shape, seen, inside, margin):
     if not seen.any():
         raise ValueError("fill_unseen: no texel is seen, nothing to fill from")
     return seen, inside
+
+
+def outline_only(uvs, masks, weights, seen, used=None, evidence=OUTLINE_EVIDENCE):
+    """The texels the photos show only at the object's outline: ``(N, N)`` bool.
+
+    A pixel on the outline (a mask pixel with a 4-neighbour off the mask, inside the photo) holds the
+    background blended in by the lens and the pixel's filter, and a camera a pixel off puts it on the wrong
+    texel. A texel seen, whose pixels off the outlines weigh less than ``evidence`` times the median texel's
+    pixels, has no clean view: the pipeline fills it from its neighbours, as an unseen one.
+
+    Parameters
+    ----------
+    uvs, masks : lists of (H, W, 2) and (H, W) arrays
+        Each view's UV per pixel and where the mesh covers it.
+    weights : list of (H, W) arrays or None
+        Each pixel's weight (the view weight; None: 1), spread over its four texels by their bilinear
+        weights (:func:`core.geometry.texels.texel_weights`).
+    seen : (N, N) bool array
+        The texels seen (by the solve).
+    used : list of (H, W) bool arrays, optional
+        The pixels the solve used (within ``masks``; default ``masks``): only they count.
+    evidence : float
+        The fraction of the median; 0 finds nothing.
+    """
+    seen = np.asarray(seen, bool)
+    used = masks if used is None else used
+    if evidence <= 0 or not seen.any():
+        return np.zeros(seen.shape, bool)
+    total = texel_weights(uvs, used, weights, seen)
+    inner = [u & ndi.binary_erosion(m, border_value=1) for u, m in zip(used, masks)]
+    clean = texel_weights(uvs, inner, weights, seen)
+    counted = seen.ravel() & (total > 0)
+    median = np.median(total[counted]) if counted.any() else 0.0
+    return (seen.ravel() & (clean <= evidence * median)).reshape(seen.shape)
