@@ -221,12 +221,8 @@ def _find_sun(problem, inputs, bakes, lighting, opt, progress):
     return sun, info
 
 
-def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel, outline=None):
-    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution.
-
-    The texels of ``outline`` (:func:`core.texture.fill.outline_only`) keep ``albedo``, filled from their
-    neighbours.
-    """
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
     from .texture.detail import agreement, detail_albedo, shading_floors
 
     report = stage_progress(progress, "detail", DETAIL_STAGES)
@@ -258,7 +254,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
         use_clipped=bool(opt.mask_clipped),
         progress=report,
         cancel=cancel,
-        keep=outline,
+        outlines=bool(opt.fill_outlines),
     )
 
 
@@ -395,7 +391,7 @@ def compute(
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(
-            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel, outline
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)

@@ -17,7 +17,6 @@ from core.pipeline import Options, compute
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
 from core.texture.detail import agreement, detail_albedo
-from core.texture.fill import outline_only
 
 N = 256  # texture
 FULL = (480, 360)  # photo size
@@ -78,11 +77,11 @@ def lighting(channels=3):
     return s[None, :] * np.array([1.0, 0.95, 0.85])[:channels, None]
 
 
-def fine_albedo(seed=0, block=2):
+def fine_albedo(seed=0):
     """Random colours on blocks of 2 x 2 texels: detail the working resolution cannot hold."""
     rng = np.random.default_rng(seed)
-    blocks = rng.uniform(0.15, 0.9, size=(N // block, N // block, 3))
-    return np.repeat(np.repeat(blocks, block, axis=0), block, axis=1).astype(np.float32)
+    blocks = rng.uniform(0.15, 0.9, size=(N // 2, N // 2, 3))
+    return np.repeat(np.repeat(blocks, 2, axis=0), 2, axis=1).astype(np.float32)
 
 
 def render(cam, mesh, albedo, sigma):
@@ -324,45 +323,35 @@ def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene)
     assert np.all(errors[True] < 1.2 * errors[False]), errors
 
 
-def test_texels_seen_only_at_the_outline_take_their_neighbours_albedo(scene):
-    # Photos as a camera takes them: each pixel the mean of 3 x 3 samples, so that at the outline the bright
-    # background blends in. The texels only outline pixels see are filled from the texels around them, which
-    # hold the same colour on patches of 32 x 32 texels.
-    mesh, _, sigma, cams, _ = scene
-    albedo = fine_albedo(block=32)
-    views, bakes = [], []
-    for i, cam in enumerate(cams):
-        sharp = render(cam, mesh, albedo, sigma)
-        sharp[~bake_view(cam, mesh).mask] = 1.0
-        h, w = FULL[1] // 3, FULL[0] // 3
-        photo = sharp.reshape(h, 3, w, 3, 3).mean(axis=(1, 3))
-        small = resized(cam, w, h)
-        views.append(ViewInput(name=f"cam{i}", camera=small, photo=photo, source="test"))
-        bakes.append(bake_view(small, mesh))
-    inputs = SceneInputs(object_name="band", mesh=mesh, views=views)
-    runs = {fill: compute(Options(texture_size=N, fill_outlines=fill), inputs, bakes) for fill in (False, True)}
-    off, on = runs[False], runs[True]
-    np.testing.assert_array_equal(on.seen, off.seen)
-    outline = outline_only([b.uv for b in bakes], [b.mask for b in bakes], [b.view_weight for b in bakes], off.seen)
-    assert on.info["outline_texels"] == outline.sum() > 0.01 * on.seen.sum() and off.info["outline_texels"] == 0
-    # The other texels are the same solve's.
-    np.testing.assert_array_equal(on.albedo[on.seen & ~outline], off.albedo[on.seen & ~outline])
-    e_off, e_on = (scaled_rmse(r.albedo, albedo, outline) for r in (off, on))
-    assert np.all(e_on < 0.7 * e_off), (e_on, e_off)
-    assert np.all(scaled_rmse(on.albedo, albedo, on.seen) < scaled_rmse(off.albedo, albedo, off.seen))
-
-
-def test_detail_albedo_keeps_the_base_on_the_texels_it_is_told_to(scene):
+def test_detail_albedo_leaves_out_the_outline_and_its_blended_background(scene):
+    # The photos' outline pixels made bright, as where a sky blends into them: with ``outlines`` the texels
+    # keep what the other pixels show, and the same texels are reached.
     mesh, albedo, sigma, cams, photos = scene
+    blended = []
+    for cam, photo in zip(cams[:4], photos):
+        mask = bake_view(cam, mesh).mask
+        p = photo.copy()
+        p[mask & ~ndi.binary_erosion(mask, border_value=1)] = 5.0
+        blended.append(p)
     base = np.full((N, N, 3), 0.5, np.float32)
-    keep = np.zeros((N, N), bool)
-    keep[:, : N // 2] = True
-    floor = np.zeros((3, 3))
-    args = (mesh, cams[:3], lambda i: (photos[i], None), np.stack([sigma] * 3), base, np.ones((N, N), bool), floor)
-    free, reached = detail_albedo(*args)
-    kept, reached_kept = detail_albedo(*args, keep=keep)
-    np.testing.assert_array_equal(kept[keep], base[keep])
-    assert np.all(reached_kept[keep])
-    right = ~keep & reached
-    np.testing.assert_allclose(kept[right], free[right], rtol=1e-5)
-    assert np.abs(free[keep & reached] - 0.5).max() > 0.1
+    runs = []
+    for shots, outlines in ((photos, False), (blended, False), (blended, True)):
+        runs.append(
+            detail_albedo(
+                mesh,
+                cams[:4],
+                lambda i, shots=shots: (shots[i], None),
+                np.stack([sigma] * 4),
+                base,
+                np.ones((N, N), bool),
+                np.zeros((3, 3)),
+                outlines=outlines,
+            )
+        )
+    (clean, reached), (bad, reached_bad), (ours, reached_ours) = runs
+    np.testing.assert_array_equal(reached_ours, reached)
+    np.testing.assert_array_equal(reached_bad, reached)
+    e_clean, e_bad, e_ours = (scaled_rmse(a, albedo, reached) for a in (clean, bad, ours))
+    # Measured: clean 0.092, blended 0.37 to 0.40, left out 0.096 in each channel.
+    assert np.all(e_bad > 2 * e_clean), (e_bad, e_clean)
+    assert np.all(e_ours < 1.2 * e_clean), (e_ours, e_clean)

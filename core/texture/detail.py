@@ -224,7 +224,7 @@ def detail_albedo(
     cancel=None,
     band_pixels: int = _BAND_PIXELS,
     sun=None,
-    keep=None,
+    outlines=False,
 ):
     """The albedo texture from the photos at their full resolution, one photo at a time.
 
@@ -257,9 +257,10 @@ def detail_albedo(
         Pixels per band of the bake.
     sun : core.geometry.sun.SunLight, optional
         The sun term, as in the solve (the last of ``sigma``'s coefficients).
-    keep : (N, N) bool array, optional
-        Texels that keep ``base``: no pixel lands in them, and they count as reached where ``base`` was seen
-        (the texels the photos show only at the outline, :func:`core.texture.fill.outline_only`).
+    outlines : bool
+        Leave out the pixels on each photo's outline, which hold the background blended in
+        (:func:`core.texture.fill.outline_only`): a texel only they land in takes its neighbours' pixels, or
+        ``base``, and counts as reached.
 
     Returns
     -------
@@ -279,9 +280,7 @@ def detail_albedo(
     floor = np.asarray(floor, np.float64).copy()
     floor[:, :2] = np.maximum(floor[:, :2], 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
-    kept = None if keep is None else np.asarray(keep, bool)
-    if kept is not None:
-        inside_flat = inside_flat & ~kept.ravel()
+    outlined = np.zeros(n * n, bool)
     m = len(cameras)
     done = 0.0
     total = float(sum(cam.width * cam.height for cam in cameras)) or 1.0
@@ -302,6 +301,11 @@ def detail_albedo(
             check_cancel(cancel)
             h = b.mask.shape[0]
             mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
+            if outlines:
+                edge = mask & ~ndi.binary_erosion(b.mask, border_value=1)
+                t = texel_index(b.uv[edge], n)
+                outlined[t[t >= 0]] = True
+                mask = mask & ~edge
             rr, cc = np.nonzero(mask)
             if rr.size:
                 uv = b.uv[rr, cc]
@@ -325,7 +329,4 @@ def detail_albedo(
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
     albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
-    if kept is not None:
-        albedo[kept] = np.asarray(base, np.float32)[kept]
-        reached |= kept
-    return albedo, reached
+    return albedo, reached | (outlined & inside_flat).reshape(n, n)
