@@ -117,7 +117,9 @@ class VIEW3D_PT_delight(bpy.types.Panel):
         sub.prop(s, "occlusion")
         sub.prop(s, "sun")
         sub.prop(s, "mask_clipped")
-        sub.prop(s, "fill_outlines")
+        row = sub.row()
+        row.active = s.method == "texture"
+        row.prop(s, "fill_outlines")
         if s.method == "image":
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")

@@ -283,8 +283,8 @@ SPEC = (
         "bool",
         True,
         "Fill outline texels",
-        "Texels the photos show only at the object's outline, where the background blends into the pixels, take "
-        "their albedo from the texels around them (off: from those pixels)",
+        "With the Texture method, texels the photos show only at the object's outline, where the background blends "
+        "into the pixels, take their albedo from the texels around them (off: from those pixels)",
         flag="--fill-outlines",
     ),
     Option(

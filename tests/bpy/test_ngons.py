@@ -188,8 +188,16 @@ def runs(tmp_path_factory):
     r.near = footprint(original, pairs.ravel(), TEX)
     for name, mesh in (("original", original), ("ngons", ngons), ("copy", copy)):
         obj.data = mesh
+        # Without fill_outlines, to see the n-gons alone: it fills the texels seen only at the outline from their
+        # neighbours, some of which are the n-gons'. With it, 93 of the 7478 texels away from the n-gons change
+        # by more than 0.05 (37 without), and their error is 1.19x, 1.05x, 1.04x the original mesh's.
         options = pipeline.Options(
-            object_name=OBJECT, camera_names=CAMERAS, texture_size=TEX, max_iter=ITERATIONS, out_dir=str(out / name)
+            object_name=OBJECT,
+            camera_names=CAMERAS,
+            texture_size=TEX,
+            max_iter=ITERATIONS,
+            out_dir=str(out / name),
+            fill_outlines=False,
         )
         rep = pipeline.run(bpy.context.scene, options)
         r.albedo[name] = read_exr(rep.albedo_path)[0]
