@@ -44,6 +44,7 @@ OPERATOR = {
     "sun": "sun",
     "align_photos": "align_photos",
     "mask_clipped": "mask_clipped",
+    "fill_outlines": "fill_outlines",
 }
 
 #: Bad values: operator keywords, the command line's arguments, and the one message both give.
