@@ -284,14 +284,9 @@ def test_the_albedo_stage_keeps_the_shadows_of_a_sun(monkeypatch):
 
 
 def _texel_totals(problem):
-    from core.geometry.texels import nearest_texel
+    from core.geometry.texels import texel_totals
 
-    size = problem.texture.size
-    total = np.zeros(size * size)
-    for i, mask in enumerate(problem.masks):
-        nearest, _ = nearest_texel(problem.uv[i][mask], problem.texture.inside)
-        total += np.bincount(nearest, weights=problem.view_weight[i][mask].astype(np.float64), minlength=size * size)
-    return total
+    return texel_totals(problem.uv, problem.masks, problem.view_weight, problem.texture.inside)[2]
 
 
 def test_the_lighting_stage_balances_the_weight_of_the_surface_seen_at_a_glance():

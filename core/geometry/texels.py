@@ -29,7 +29,6 @@ __all__ = [
     "bilinear_texels",
     "nearest_texel",
     "texel_totals",
-    "texel_weights",
     "texture_layout",
     "pixel_matched_size",
     "uv_stretched",
@@ -486,22 +485,6 @@ def texel_totals(uvs, masks, weights, valid):
         pixel_weights.append(w)
         total += np.bincount(texel, weights=w, minlength=n * n)
     return texels, pixel_weights, total
-
-
-def texel_weights(uvs, masks, weights, valid) -> np.ndarray:
-    """The weight of each view's masked pixels per texel, ``(N * N,)`` float64, each pixel spread over its four
-    texels by its bilinear weights (:func:`bilinear_texels`), as the solve's observations are.
-
-    ``weights`` is a list of ``(H, W)`` arrays, or None for 1.
-    """
-    n = np.asarray(valid).shape[0]
-    total = np.zeros(n * n)
-    for i, mask in enumerate(masks):
-        flat, wts = bilinear_texels(uvs[i][mask], valid)
-        if weights is not None:
-            wts = wts * weights[i][mask][:, None]
-        total += np.bincount(flat.ravel(), weights=wts.ravel().astype(np.float64), minlength=n * n)
-    return total
 
 
 def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:

@@ -2,7 +2,7 @@
 texture sampled back at the pixels.
 """
 
-from .fill import fill_unseen, outline_only
+from .fill import fill_unseen, outline_only, outline_pixels
 from .fuse import fuse_views
 from .sample import sample_texture
 
@@ -10,5 +10,6 @@ __all__ = [
     "fuse_views",
     "fill_unseen",
     "outline_only",
+    "outline_pixels",
     "sample_texture",
 ]

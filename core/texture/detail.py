@@ -37,6 +37,7 @@ from ..geometry.transfer import transfer_rows
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
+from .fill import outline_pixels
 from .fuse import fuse_views
 
 __all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
@@ -302,7 +303,7 @@ def detail_albedo(
             h = b.mask.shape[0]
             mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
             if outlines:
-                edge = mask & ~ndi.binary_erosion(b.mask, border_value=1)
+                edge = mask & outline_pixels(b.mask)
                 t = texel_index(b.uv[edge], n)
                 outlined[t[t >= 0]] = True
                 mask = mask & ~edge

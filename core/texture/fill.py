@@ -11,11 +11,11 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..geometry.texels import texel_weights
+from ..geometry.texels import bilinear_texels
 from ..parallel import thread_map
 from ..solve.cg import pcg
 
-__all__ = ["fill_unseen", "outline_only", "OUTLINE_EVIDENCE"]
+__all__ = ["fill_unseen", "outline_only", "outline_pixels", "OUTLINE_EVIDENCE"]
 
 #: :func:`outline_only`: a texel whose pixels off the outlines weigh less than this fraction of the median
 #: texel's pixels is filled from its neighbours.
@@ -243,13 +243,18 @@ def _check_args(tex, shape, seen, inside, margin):
     return seen, inside
 
 
+def outline_pixels(mask):
+    """The pixels of ``mask`` on its outline: a 4-neighbour off the mask (not past the photo's border)."""
+    return mask & ~ndi.binary_erosion(mask, border_value=1)
+
+
 def outline_only(uvs, masks, weights, seen, used=None, evidence=OUTLINE_EVIDENCE):
     """The texels the photos show only at the object's outline: ``(N, N)`` bool.
 
-    A pixel on the outline (a mask pixel with a 4-neighbour off the mask, inside the photo) holds the
-    background blended in by the lens and the pixel's filter, and a camera a pixel off puts it on the wrong
-    texel. A texel seen, whose pixels off the outlines weigh less than ``evidence`` times the median texel's
-    pixels, has no clean view: the pipeline fills it from its neighbours, as an unseen one.
+    A pixel on the outline (:func:`outline_pixels`) holds the background blended in by the lens and the
+    pixel's filter, and a camera a pixel off puts it on the wrong texel. A texel seen, whose pixels off the
+    outlines weigh less than ``evidence`` times the median texel's pixels, has no clean view: the pipeline
+    fills it from its neighbours, as an unseen one.
 
     Parameters
     ----------
@@ -257,7 +262,7 @@ def outline_only(uvs, masks, weights, seen, used=None, evidence=OUTLINE_EVIDENCE
         Each view's UV per pixel and where the mesh covers it.
     weights : list of (H, W) arrays or None
         Each pixel's weight (the view weight; None: 1), spread over its four texels by their bilinear
-        weights (:func:`core.geometry.texels.texel_weights`).
+        weights, as the solve's observations are.
     seen : (N, N) bool array
         The texels seen (by the solve).
     used : list of (H, W) bool arrays, optional
@@ -269,9 +274,16 @@ def outline_only(uvs, masks, weights, seen, used=None, evidence=OUTLINE_EVIDENCE
     used = masks if used is None else used
     if evidence <= 0 or not seen.any():
         return np.zeros(seen.shape, bool)
-    total = texel_weights(uvs, used, weights, seen)
-    inner = [u & ndi.binary_erosion(m, border_value=1) for u, m in zip(used, masks)]
-    clean = texel_weights(uvs, inner, weights, seen)
+    n2 = seen.size
+    total, clean = np.zeros(n2), np.zeros(n2)
+    for i, (u, m) in enumerate(zip(used, masks)):
+        flat, wts = bilinear_texels(uvs[i][u], seen)
+        if weights is not None:
+            wts = wts * weights[i][u][:, None]
+        wts = wts.astype(np.float64)
+        total += np.bincount(flat.ravel(), weights=wts.ravel(), minlength=n2)
+        off = ~outline_pixels(m)[u]
+        clean += np.bincount(flat[off].ravel(), weights=wts[off].ravel(), minlength=n2)
     counted = seen.ravel() & (total > 0)
     median = np.median(total[counted]) if counted.any() else 0.0
     return (seen.ravel() & (clean <= evidence * median)).reshape(seen.shape)
