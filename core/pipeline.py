@@ -16,7 +16,7 @@ from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import joined, start, thread_map
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
-from .scene import SceneInputs
+from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams
 from .solve.stages import solve
@@ -103,6 +103,48 @@ def _thinned(masks, budget):
         t[::k, ::k] = m[::k, ::k]
         out.append(t if t.any() else m)
     return out
+
+
+#: :func:`channel_gains` changes no channel by more than this factor either way: a channel the photos hardly
+#: have (a red object under red light, in blue) is not raised to the others' level, its noise with it.
+CHANNEL_GAIN_MAX = 10.0
+
+
+def channel_gains(photos, masks) -> np.ndarray:
+    """Per channel, the factor that brings its mean over the masked pixels to the mean of the channels' means.
+
+    The solver's constants (the Huber loss's delta, the stages' thresholds) are in the photos' units: without
+    this a dark channel (the blue of a warm-lit red object, a tenth of the red) is held to a looser fit than a
+    bright one. :func:`compute` solves on the photos times these gains and divides them out of the albedo
+    (docs/measurements.md).
+    """
+    total, count = 0.0, 0
+    for photo, mask in zip(photos, masks):
+        total = total + photo[mask].sum(axis=0, dtype=np.float64)
+        count += int(np.count_nonzero(mask))
+    means = np.asarray(total, np.float64) / max(count, 1)
+    good = np.isfinite(means) & (means > 0)
+    gains = np.ones(np.shape(means))
+    if good.any():
+        gains[good] = np.clip(means[good].mean() / means[good], 1 / CHANNEL_GAIN_MAX, CHANNEL_GAIN_MAX)
+    return gains.astype(np.float32)
+
+
+def _with_gains(inputs, gains):
+    """``inputs`` with every photo (the full-resolution ones as they are read) times ``gains``, per channel."""
+
+    def scaled(full):
+        if full is None:
+            return None
+
+        def load():
+            photo, clipped = full.load()
+            return photo * gains, clipped
+
+        return FullPhoto(camera=full.camera, load=load)
+
+    views = [replace(v, photo=v.photo * gains, full=scaled(v.full)) for v in inputs.views]
+    return replace(inputs, views=views)
 
 
 def _lighting_stage(problem, params, progress, cancel):
@@ -287,8 +329,12 @@ def compute(
     peaks = {} if peaks is None else peaks
     occlusion_s = None
     n = int(opt.texture_size)
-    photos = [v.photo for v in inputs.views]
     masks = [b.mask for b in bakes]
+    gains = None
+    if opt.method != "project":
+        gains = channel_gains([v.photo for v in inputs.views], masks)
+        inputs = _with_gains(inputs, gains)
+    photos = [v.photo for v in inputs.views]
     solve_masks = masks
     if opt.mask_clipped and opt.method != "project":
         solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
@@ -395,8 +441,12 @@ def compute(
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)
+    if gains is not None:
+        albedo = albedo / gains
     if opt.method == "texture":
         views = thread_map(lambda v: sample_texture(albedo, uvs[v], masks[v]), range(len(uvs)), opt.threads)
+    elif gains is not None:
+        views = [v / gains for v in views]
     return Computed(
         albedo=np.asarray(albedo, dtype=np.float32),
         seen=seen,
@@ -416,6 +466,7 @@ def compute(
             occlusion_seconds=occlusion_s,
             detail=detail,
             outline_texels=0 if outline is None else int(outline.sum()),
+            channel_gains=None if gains is None else [float(g) for g in gains],
             **({} if sun_info is None else {"sun": sun_info}),
         ),
     )
