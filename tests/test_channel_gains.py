@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from test_detail import VIEWS, band_mesh, fine_albedo, inputs_of, lighting, look_at, render
+from test_detail import band_mesh, fine_albedo, inputs_of, lighting, render, ring_cameras
 
 import core.pipeline as pipeline
 from core.geometry.bake import bake_view
@@ -35,11 +35,7 @@ def warm_band():
     """The detail tests' band under their light, its albedo warm (blue a tenth of red), 10 photos of 240 x 180."""
     mesh = band_mesh()
     albedo = fine_albedo() * np.array([1.0, 0.4, 0.1], np.float32)
-    cams = []
-    for k in range(VIEWS):
-        az, el = 2 * np.pi * k / VIEWS + 0.3, 0.3 if k % 2 else -0.25
-        eye = 3.0 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)])
-        cams.append(look_at(eye, 240, 180))
+    cams = ring_cameras(240, 180)
     photos = [render(c, mesh, albedo, lighting()) for c in cams]
     return mesh, cams, photos, [bake_view(c, mesh) for c in cams]
 
@@ -78,14 +74,11 @@ def test_the_albedo_does_not_depend_on_the_photos_colour_balance(warm_band, monk
     assert np.all(without > 3e-3), without
 
 
-def test_the_full_resolution_photos_are_scaled_too(monkeypatch):
+def test_the_full_resolution_photos_are_scaled_too():
     # The detail stage reads the full photos itself: they must take the gains the working ones took.
     mesh = band_mesh()
     albedo = fine_albedo() * np.array([1.0, 0.4, 0.1], np.float32)
-    cams = []
-    for k in range(VIEWS):
-        az, el = 2 * np.pi * k / VIEWS + 0.3, 0.3 if k % 2 else -0.25
-        cams.append(look_at(3.0 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)]), 480, 360))
+    cams = ring_cameras(480, 360)
     photos = [render(c, mesh, albedo, lighting()) for c in cams]
     plain = inputs_of((mesh, albedo, None, cams, photos), lambda i: (photos[i].copy(), None))
     bakes = [bake_view(v.camera, mesh) for v in plain.views]

@@ -60,6 +60,16 @@ def look_at(eye, width, height, fill=0.8):
     return Camera(K, R, -R @ eye, width, height)
 
 
+def ring_cameras(width, height):
+    """VIEWS cameras around the band, on two rings (elevations 0.3 and -0.25 rad), 3 units from its centre."""
+    cams = []
+    for k in range(VIEWS):
+        az, el = 2 * np.pi * k / VIEWS + 0.3, 0.3 if k % 2 else -0.25
+        eye = 3.0 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)])
+        cams.append(look_at(eye, width, height))
+    return cams
+
+
 def resized(cam, width, height):
     """The camera on a resampled pixel grid (pixel-edge coordinates scale with the image)."""
     sx, sy = width / cam.width, height / cam.height
@@ -98,10 +108,7 @@ def scene():
     mesh = band_mesh()
     albedo = fine_albedo()
     sigma = lighting()
-    cams = []
-    for k in range(VIEWS):
-        az, el = 2 * np.pi * k / VIEWS + 0.3, 0.3 if k % 2 else -0.25
-        cams.append(look_at(3.0 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)]), *FULL))
+    cams = ring_cameras(*FULL)
     photos = [render(c, mesh, albedo, sigma) for c in cams]
     return mesh, albedo, sigma, cams, photos
 
