@@ -67,7 +67,9 @@ def test_the_albedo_does_not_depend_on_the_photos_colour_balance(warm_band, monk
         return np.sqrt(np.mean(rel**2, axis=0))
 
     # Measured: 4e-5 / 5e-5 / 5e-5 with the gains, 0.011 / 0.010 / 0.014 without.
+    before = [p.copy() for p in photos]
     with_gains = difference()
+    assert all(np.array_equal(p, q) for p, q in zip(photos, before))  # the caller's photos are not scaled in place
     monkeypatch.setattr(pipeline, "channel_gains", lambda photos, masks: np.ones(3, np.float32))
     without = difference()
     assert np.all(with_gains < 1e-3), with_gains
@@ -90,3 +92,14 @@ def test_the_full_resolution_photos_are_scaled_too():
     seen = a.seen & b.seen
     rel = (b.albedo[seen] / k - a.albedo[seen]) / np.maximum(a.albedo[seen], 1e-6)
     assert np.all(np.sqrt(np.mean(rel**2, axis=0)) < 1e-3)
+
+
+def test_a_nan_pixel_is_still_refused_by_name(warm_band):
+    # Its channel's mean is NaN, so that channel keeps gain 1 and the problem's own check names the view.
+    mesh, cams, photos, bakes = warm_band
+    bad = [p.copy() for p in photos]
+    r, c = np.argwhere(bakes[3].mask)[0]
+    bad[3][r, c, 1] = np.nan
+    with pytest.raises(ValueError, match=r"view 3 \(c3\): 1 pixels inside the mask are NaN or infinite"):
+        _albedo(mesh, cams, bad, bakes)
+    assert np.isnan(bad[3][r, c, 1]) and np.array_equal(bad[2], photos[2])
