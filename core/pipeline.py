@@ -110,13 +110,19 @@ def _thinned(masks, budget):
 CHANNEL_GAIN_MAX = 10.0
 
 
-def channel_gains(photos, masks) -> np.ndarray:
-    """Per channel, the factor that brings its mean over the masked pixels to the mean of the channels' means.
+#: The mean the photos are brought to over the mesh's pixels before the solve: the solve does not depend on
+#: the photos' exposure. Chosen on the 40 scenes (docs/measurements.md); their own means are 0.07-0.42.
+PHOTO_LEVEL = 0.1
+
+
+def channel_gains(photos, masks, level: float | None = None) -> np.ndarray:
+    """Per channel, the factor that brings its mean over the masked pixels to the mean of the channels' means,
+    times the one factor that brings that mean to ``level`` (None: the photos' own).
 
     The solver's constants (the Huber loss's delta, the stages' thresholds) are in the photos' units: without
     this a dark channel (the blue of a warm-lit red object, a tenth of the red) is held to a looser fit than a
-    bright one. :func:`compute` solves on the photos times these gains and divides them out of the albedo
-    (docs/measurements.md).
+    bright one, and photos twice as bright give another albedo. :func:`compute` solves on the photos times
+    these gains, at :data:`PHOTO_LEVEL`, and divides them out of the albedo (docs/measurements.md).
     """
     total, count = 0.0, 0
     for photo, mask in zip(photos, masks):
@@ -126,7 +132,10 @@ def channel_gains(photos, masks) -> np.ndarray:
     good = np.isfinite(means) & (means > 0)
     gains = np.ones(np.shape(means))
     if good.any():
-        gains[good] = np.clip(means[good].mean() / means[good], 1 / CHANNEL_GAIN_MAX, CHANNEL_GAIN_MAX)
+        mean = means[good].mean()
+        gains[good] = np.clip(mean / means[good], 1 / CHANNEL_GAIN_MAX, CHANNEL_GAIN_MAX)
+        if level is not None:
+            gains = gains * (level / mean)
     return gains.astype(np.float32)
 
 
@@ -332,7 +341,7 @@ def compute(
     masks = [b.mask for b in bakes]
     gains = None
     if opt.method != "project":
-        gains = channel_gains([v.photo for v in inputs.views], masks)
+        gains = channel_gains([v.photo for v in inputs.views], masks, PHOTO_LEVEL)
         inputs = _with_gains(inputs, gains)
     photos = [v.photo for v in inputs.views]
     solve_masks = masks
