@@ -1,8 +1,6 @@
 """The photos' channels brought to one mean, and that mean to one level, before the solve
 (core.pipeline.channel_gains), and divided out after."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from test_detail import band_mesh, fine_albedo, inputs_of, lighting, render, ring_cameras
@@ -56,9 +54,13 @@ def _balance(photos, masks):
     return k.astype(np.float32)
 
 
-def _albedo(mesh, cams, photos, bakes):
+def _computed(mesh, cams, photos, bakes):
     views = [ViewInput(name=f"c{i}", camera=c, photo=p, source="test") for i, (c, p) in enumerate(zip(cams, photos))]
-    out = compute(Options(texture_size=64), SceneInputs(object_name="band", mesh=mesh, views=views), bakes)
+    return compute(Options(texture_size=64), SceneInputs(object_name="band", mesh=mesh, views=views), bakes)
+
+
+def _albedo(mesh, cams, photos, bakes):
+    out = _computed(mesh, cams, photos, bakes)
     return out.albedo, out.seen
 
 
@@ -88,11 +90,9 @@ def test_the_albedo_does_not_depend_on_the_photos_exposure(warm_band, monkeypatc
     # Float photos come in any units (an EXR from a raw converter, an HDR merge): the albedo follows their scale
     # and nothing else, and the lighting written out is the same.
     mesh, cams, photos, bakes = warm_band
-    views = [ViewInput(name=f"c{i}", camera=c, photo=p, source="test") for i, (c, p) in enumerate(zip(cams, photos))]
 
     def run(k):
-        scaled = [replace(v, photo=v.photo * np.float32(k)) for v in views]
-        return compute(Options(texture_size=64), SceneInputs(object_name="band", mesh=mesh, views=scaled), bakes)
+        return _computed(mesh, cams, [p * np.float32(k) for p in photos], bakes)
 
     def difference():
         a = run(1.0)
