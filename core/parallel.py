@@ -10,7 +10,7 @@ import contextlib
 import os
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-__all__ = ["available_cores", "joined", "resolve_threads", "start", "thread_map"]
+__all__ = ["available_cores", "joined", "prefetched", "resolve_threads", "start", "thread_map"]
 
 
 def available_cores() -> int:
@@ -85,3 +85,31 @@ def joined(future: Future):
     except BaseException:
         wait([future])
         raise
+
+
+_END = object()
+
+
+def prefetched(items, threads: int | None = None):
+    """The items of the iterable ``items``, each next one made on a thread of its own while the caller uses this one.
+
+    For a loop whose items take as long to make as to use (the detail stage bakes a band of a photo while the
+    last one is divided and added in). At most one item is made ahead. With one thread (``threads``, as
+    :func:`resolve_threads`) it is ``items`` itself. When the caller stops early (an error, a cancel), the item
+    being made is waited for, and no other is begun.
+    """
+    it = iter(items)
+    if resolve_threads(threads) <= 1:
+        yield from it
+        return
+    pool = ThreadPoolExecutor(max_workers=1)
+    try:
+        ahead = pool.submit(next, it, _END)
+        while True:
+            item = ahead.result()
+            if item is _END:
+                return
+            ahead = pool.submit(next, it, _END)
+            yield item
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)

@@ -306,6 +306,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
         progress=report,
         cancel=cancel,
         outlines=bool(opt.fill_outlines),
+        threads=opt.threads,
     )
 
 

@@ -4,7 +4,7 @@ import threading
 
 import pytest
 
-from core.parallel import joined, start, thread_map
+from core.parallel import joined, prefetched, start, thread_map
 
 
 def test_thread_map_keeps_the_order_and_reports_each_item_in_turn():
@@ -87,3 +87,60 @@ def test_a_block_that_goes_through_does_not_wait():
     assert not future.done()  # its result is the caller's to wait for
     release.set()
     assert future.result(timeout=10)
+
+
+def test_prefetched_makes_the_next_item_while_the_caller_uses_this_one():
+    made = [threading.Event() for _ in range(4)]
+    makers = set()
+
+    def items():
+        for i in range(4):
+            makers.add(threading.get_ident())
+            made[i].set()
+            yield i
+
+    out = []
+    for i in prefetched(items(), threads=2):
+        if i < 3:
+            assert made[i + 1].wait(10)  # made while item i is in use: never set if it were made on demand
+        out.append(i)
+    assert out == [0, 1, 2, 3]
+    assert makers and threading.get_ident() not in makers
+
+
+def test_prefetched_with_one_thread_is_the_items_themselves():
+    makers = []
+
+    def items():
+        for i in range(3):
+            makers.append(threading.get_ident())
+            yield i
+
+    assert list(prefetched(items(), threads=1)) == [0, 1, 2]
+    assert set(makers) == {threading.get_ident()}
+
+
+def test_prefetched_stops_making_items_when_the_caller_stops():
+    made = []
+
+    def items():
+        for i in range(100):
+            made.append(i)
+            yield i
+
+    with pytest.raises(RuntimeError, match="cancelled"):
+        for _ in prefetched(items(), threads=2):
+            raise RuntimeError("cancelled")
+    assert made in ([0], [0, 1])  # the one made ahead, if begun, was finished; no other was begun
+
+
+def test_prefetched_raises_an_error_of_the_items_in_the_caller():
+    def items():
+        yield 1
+        raise ValueError("unreadable photo")
+
+    got = []
+    with pytest.raises(ValueError, match="unreadable photo"):
+        for i in prefetched(items(), threads=2):
+            got.append(i)
+    assert got == [1]

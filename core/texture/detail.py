@@ -17,9 +17,10 @@ as the solve floors it) and adds the quotient into the texel that holds its UV (
   biweight of the log ratio between the view's own quotient and the median of all views' quotients, so that a
   highlight, a misregistered edge or a shadow the lighting does not explain, seen in one photo, drops out.
 
-Memory holds the texture's accumulators and one photo (its bake in bands). A texel's value is the weighted mean
-of its pixels, with a small weight (:data:`PRIOR_WEIGHT`) of the working-resolution albedo; a texel no pixel
-reached takes its neighbours' pixels, or else the working-resolution albedo.
+Memory holds the texture's accumulators and one photo (its bake in bands), or two while the next photo is read
+(on a thread of the stage's own, which bakes each band while the last one is added in). A texel's value is the
+weighted mean of its pixels, with a small weight (:data:`PRIOR_WEIGHT`) of the working-resolution albedo; a texel
+no pixel reached takes its neighbours' pixels, or else the working-resolution albedo.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from ..geometry.bake import bake_rows, mesh_normals
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import transfer_rows
+from ..parallel import prefetched
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
@@ -226,6 +228,7 @@ def detail_albedo(
     band_pixels: int = _BAND_PIXELS,
     sun=None,
     outlines=False,
+    threads=None,
 ):
     """The albedo texture from the photos at their full resolution, one photo at a time.
 
@@ -236,7 +239,8 @@ def detail_albedo(
         Each view's camera on its full-resolution pixel grid.
     load : callable(i) -> (photo, clipped)
         View i's photo, ``(H, W, C)`` float32 linear (row 0 at the top), and its clipped pixels ``(H, W)`` bool
-        or None. Called once per view, in order; the photo is let go before the next call.
+        or None. Called once per view, in order (from a thread of the stage's own when ``threads`` > 1); the
+        photo is let go once the next one is in use.
     sigma : (m, C, K) array
         The solved lighting of each view (in the scale of ``base``).
     base : (N, N, C) array
@@ -286,47 +290,60 @@ def detail_albedo(
     done = 0.0
     total = float(sum(cam.width * cam.height for cam in cameras)) or 1.0
     t0 = time.perf_counter()
-    for v, cam in enumerate(cameras):
+
+    def bands():
+        for v, cam in enumerate(cameras):
+            photo, clipped = load(v)
+            if photo.shape[:2] != (cam.height, cam.width):
+                raise DelightError(
+                    f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
+                )
+            for r0, b in bake_rows(cam, mesh, band_pixels, corner, face):
+                yield v, photo, clipped, r0, b
+            del photo, clipped  # this generator's hold on it, before the next one is read
+
+    check_cancel(cancel)
+    if progress is not None:
+        progress(0.0, f"photo 1/{m}")
+    last = None
+    # The next band is baked (and the next photo read) while this one is divided and added in.
+    for v, photo, clipped, r0, b in prefetched(bands(), threads):
         check_cancel(cancel)
-        if progress is not None:
-            progress(done / total, f"photo {v + 1}/{m}")
-        photo, clipped = load(v)
-        if photo.shape[:2] != (cam.height, cam.width):
-            raise DelightError(
-                f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
-            )
-        if weights is not None:
-            rows_lo = _working_pixel(cam.height, weights[v].shape[0])
-            cols_lo = _working_pixel(cam.width, weights[v].shape[1])
-        for r0, b in bake_rows(cam, mesh, band_pixels, corner, face):
-            check_cancel(cancel)
-            h = b.mask.shape[0]
-            mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
-            if outlines:
-                edge = mask & outline_pixels(b.mask)
-                t = texel_index(b.uv[edge], n)
-                outlined[t[t >= 0]] = True
-                mask = mask & ~edge
-            rr, cc = np.nonzero(mask)
-            if rr.size:
-                uv = b.uv[rr, cc]
-                pos = None if sun is None else b.position[rr, cc]
-                values = photo[r0 + rr, cc]
-                a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos, values)
-                q = values / a
-                # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
-                # (division_start's): dark pixels, whose quotient carries the most noise, count least.
-                w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
-                if weights is not None:
-                    w = w * weights[v][rows_lo[r0 + rr], cols_lo[cc]]
-                texel = texel_index(uv, n)
-                keep = texel >= 0
-                keep[keep] = inside_flat[texel[keep]]
-                _splat(sums, texel[keep], w[keep], q[keep])
-            done += h * cam.width
+        cam = cameras[v]
+        if v != last:
+            last = v
             if progress is not None:
                 progress(done / total, f"photo {v + 1}/{m}")
-        del photo, clipped  # let it go before the next one is read
+            if weights is not None:
+                rows_lo = _working_pixel(cam.height, weights[v].shape[0])
+                cols_lo = _working_pixel(cam.width, weights[v].shape[1])
+        h = b.mask.shape[0]
+        mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
+        if outlines:
+            edge = mask & outline_pixels(b.mask)
+            t = texel_index(b.uv[edge], n)
+            outlined[t[t >= 0]] = True
+            mask = mask & ~edge
+        rr, cc = np.nonzero(mask)
+        if rr.size:
+            uv = b.uv[rr, cc]
+            pos = None if sun is None else b.position[rr, cc]
+            values = photo[r0 + rr, cc]
+            a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos, values)
+            q = values / a
+            # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
+            # (division_start's): dark pixels, whose quotient carries the most noise, count least.
+            w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
+            if weights is not None:
+                w = w * weights[v][rows_lo[r0 + rr], cols_lo[cc]]
+            texel = texel_index(uv, n)
+            keep = texel >= 0
+            keep[keep] = inside_flat[texel[keep]]
+            _splat(sums, texel[keep], w[keep], q[keep])
+        done += h * cam.width
+        if progress is not None:
+            progress(done / total, f"photo {v + 1}/{m}")
+        del photo, clipped, b
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
     albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
