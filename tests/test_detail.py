@@ -1,5 +1,6 @@
 """The detail stage (core.texture.detail): the albedo again from the photos at full resolution, one at a time."""
 
+import threading
 import weakref
 from dataclasses import replace
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.ndimage as ndi
 
+from core.errors import Cancelled
 from core.evaluate.metrics import scaled_rmse
 from core.geometry.bake import bake_rows, bake_view
 from core.geometry.bilinear import interpolate
@@ -304,6 +306,35 @@ def test_the_next_band_baked_on_a_thread_of_its_own_changes_no_texel(scene):
     assert loads_one.calls == loads_two.calls == len(cams)
     # One thread holds one photo at a time; two hold the next while the last one's bands are added in.
     assert loads_one.max_alive == 0 and loads_two.max_alive == 1
+
+
+def test_a_cancel_in_the_detail_stage_stops_its_reading_ahead_too(scene):
+    # The cancel comes while the helper thread bakes ahead: the stage stops within a band, reads no further
+    # photo, and leaves no thread of its own behind.
+    mesh, albedo, sigma, cams, photos = scene
+    loads = Loads(photos)
+    asked = []
+
+    def cancel():
+        asked.append(1)
+        return len(asked) > 4  # in the second photo's bands
+
+    before = threading.active_count()
+    with pytest.raises(Cancelled):
+        detail_albedo(
+            mesh,
+            cams,
+            loads,
+            np.repeat(sigma[None], len(cams), 0),
+            albedo,
+            np.ones((N, N), bool),
+            np.tile([0.05, 0.1, 1.0], (3, 1)),
+            band_pixels=120 * FULL[0],  # 3 bands a photo
+            cancel=cancel,
+            threads=2,
+        )
+    assert loads.calls == 2 < len(cams)
+    assert threading.active_count() == before
 
 
 def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
