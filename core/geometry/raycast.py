@@ -80,6 +80,10 @@ def _bounds(vc, z_near):
     """
     z = vc[:, :, 2]
     front = z >= z_near
+    if front.all():  # the common case, without the NaNs
+        px, py = vc[:, :, 0] / z, vc[:, :, 1] / z
+        (xmin, xmax), (ymin, ymax) = (_nan_min_max([p[:, 0], p[:, 1], p[:, 2]]) for p in (px, py))
+        return xmin, xmax, ymin, ymax, np.ones(len(vc), bool)
     keep = front.any(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         px = np.where(front, vc[:, :, 0] / z, np.nan)
@@ -135,12 +139,19 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     best = np.full(h * w, -1, dtype=np.intp)
     bary = np.zeros((h * w, 3))
     if len(tri_pos):
-        vc = tri_pos @ camera.R.T + camera.t  # (T, 3, 3) camera space
+        # One (3T, 3) product: a stack of T 3x3 products is several times slower.
+        vc = (tri_pos.reshape(-1, 3) @ camera.R.T + camera.t).reshape(-1, 3, 3)  # camera space
         scale = float(np.abs(vc).max()) or 1.0
         z_near = 1e-9 * scale
-        spans = _row_spans(camera, vc, z_near)
+        # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
+        boxes = _pixel_boxes(camera, vc, z_near)
+        tris = np.flatnonzero(boxes[3] > 0)
+        vc = vc[tris]
+        spans = _row_spans(camera, vc, z_near, [b[tris] for b in boxes])
         if spans[0].size:
             _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary)
+            hit = best >= 0
+            best[hit] = tris[best[hit]]
     bary[best < 0] = 0.0
     return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
 
@@ -176,19 +187,20 @@ def _pixel_boxes(camera, vc, z_near):
     return c0, c1, r0, nr
 
 
-def _row_spans(camera, vc, z_near):
+def _row_spans(camera, vc, z_near, boxes):
     """Candidate pixels as runs on rows: triangle, row, first column and length of each run.
 
-    One run per row of each triangle's box; its columns are the exact span of
-    the projected triangle on that row (the box's for triangles that cross the
-    camera plane), so few candidates miss.
+    One run per row of each triangle's box (``boxes``, :func:`_pixel_boxes`); its columns are the exact span
+    of the projected triangle on that row (the box's for triangles that cross the camera plane), so few
+    candidates miss.
     """
-    c0, c1, r0, nr = _pixel_boxes(camera, vc, z_near)
+    c0, c1, r0, nr = boxes
     tris = np.flatnonzero(nr > 0)
     pt = np.repeat(tris, nr[tris])
     prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris], nr[tris]))
     lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
-    front = np.all(vc[pt, :, 2] >= z_near, axis=1)
+    # A run of one column is left to the exact test: finding its span would cost as much.
+    front = (hi > lo) & np.all(vc[pt, :, 2] >= z_near, axis=1)
     if front.any():
         f = np.flatnonzero(front)
         x_lo, x_hi = _row_extent(camera, vc[pt[f]], prow[f].astype(np.float64))
