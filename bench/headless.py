@@ -39,7 +39,9 @@ def run_headless(blend, out_dir, *args, monitor=None) -> Run:
     ``monitor(process, log_path)``, if given, runs in a thread while the child runs (to sample its memory).
     """
     cmd = [sys.executable, "-m", "blender_addon", str(blend), "--out", str(out_dir), "--overwrite", *map(str, args)]
-    env = dict(os.environ, PYTHONPATH=ROOT, OPENBLAS_NUM_THREADS="1")
+    # BLAS threads as a user has them: the tool keeps BLAS to one thread itself (core.parallel.blas_on_one_thread).
+    env = dict(os.environ, PYTHONPATH=ROOT)
+    env.pop("OPENBLAS_NUM_THREADS", None)
     os.makedirs(out_dir, exist_ok=True)
     log_path = os.path.join(out_dir, "run.log")
     t = time.perf_counter()

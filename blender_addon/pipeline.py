@@ -30,6 +30,7 @@ from .core.errors import Cancelled, DelightError
 from .core.io import outputs as _outputs
 from .core.io.names import safe_name
 from .core.io.photo_cache import PhotoCache
+from .core.parallel import blas_on_one_thread
 from .core.pipeline import Computed, Options, check_cancel, peak_mb, schedule, stage_progress, uses_detail
 from .core.pipeline import compute as _compute
 
@@ -123,6 +124,7 @@ def _input_files(inputs) -> list:
     return files
 
 
+@blas_on_one_thread()
 def prepare(scene, options: Options, progress=None, cancel=None) -> Prepared:
     """Read the scene into arrays: gather the inputs and bake every view (main thread).
 

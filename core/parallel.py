@@ -1,7 +1,9 @@
 """How many threads a run uses, and the one way the core runs independent work items on them.
 
 NumPy's large array operations and SciPy's sparse products release the GIL, so plain threads run them on
-several cores at once without copying the arrays into other processes.
+several cores at once without copying the arrays into other processes. The BLAS that NumPy and SciPy link
+(OpenBLAS) would start threads of its own for each large product, on the same cores; the entry points run under
+:func:`blas_on_one_thread`.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import contextlib
 import os
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-__all__ = ["available_cores", "joined", "prefetched", "resolve_threads", "start", "thread_map"]
+__all__ = ["available_cores", "blas_on_one_thread", "joined", "prefetched", "resolve_threads", "start", "thread_map"]
 
 
 def available_cores() -> int:
@@ -113,3 +115,21 @@ def prefetched(items, threads: int | None = None):
             yield item
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextlib.contextmanager
+def blas_on_one_thread():
+    """While the block runs, the BLAS libraries loaded (OpenBLAS, MKL, ...) use one thread each; as a decorator, too.
+
+    The core gives the cores out itself. A BLAS that also starts a thread per core for each matrix product
+    oversubscribes them, and its idle threads spin while the pools wait: a 13 x 12 MP run took 1.4 times as
+    long (docs/measurements.md). The limits before the block are restored after it. Without threadpoolctl
+    (shipped with the add-on, in requirements.txt) this does nothing.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield

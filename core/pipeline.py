@@ -14,7 +14,7 @@ import numpy as np
 from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
-from .parallel import joined, start, thread_map
+from .parallel import blas_on_one_thread, joined, start, thread_map
 from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
 from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
@@ -310,6 +310,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
     )
 
 
+@blas_on_one_thread()
 def compute(
     options: Options,
     inputs: SceneInputs,

@@ -1,10 +1,20 @@
-"""core.parallel: work items on threads, and one job begun beside the caller's work."""
+"""core.parallel: work items on threads, one job begun beside the caller's work, and BLAS kept to one thread."""
 
 import threading
 
+import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401  (loads SciPy's own BLAS, which must be limited too)
+from test_detail import band_mesh, fine_albedo, lighting, render, ring_cameras
+from threadpoolctl import threadpool_info, threadpool_limits
 
-from core.parallel import joined, prefetched, start, thread_map
+from core.evaluate.synthetic import sphere_scene
+from core.geometry.bake import bake_view
+from core.parallel import blas_on_one_thread, joined, prefetched, start, thread_map
+from core.pipeline import Options, compute
+from core.scene import SceneInputs, ViewInput
+from core.solve.solver import SolverParams
+from core.solve.stages import solve
 
 
 def test_thread_map_keeps_the_order_and_reports_each_item_in_turn():
@@ -144,3 +154,47 @@ def test_prefetched_raises_an_error_of_the_items_in_the_caller():
         for i in prefetched(items(), threads=2):
             got.append(i)
     assert got == [1]
+
+
+def blas_threads():
+    """The thread count of every BLAS library loaded (NumPy's and SciPy's OpenBLAS here)."""
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_blas_is_on_one_thread_within_the_block_and_as_before_after_it():
+    with threadpool_limits(limits=2, user_api="blas"):  # the tests run with OPENBLAS_NUM_THREADS=1
+        assert len(blas_threads()) >= 2 and set(blas_threads()) == {2}
+        with blas_on_one_thread():
+            assert set(blas_threads()) == {1}
+            np.ones((300, 300)) @ np.ones((300, 300))
+        assert set(blas_threads()) == {2}
+        with pytest.raises(RuntimeError), blas_on_one_thread():
+            raise RuntimeError("a failed run")
+        assert set(blas_threads()) == {2}
+
+
+def test_the_solver_runs_with_blas_on_one_thread():
+    problem = sphere_scene(n_views=4, height=40, width=50, texture_size=16, seed=2).problem
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        solve(problem, SolverParams(max_iter=2, threads=2), progress=lambda f, m: seen.append(blas_threads()))
+        after = blas_threads()
+    assert seen and all(set(b) == {1} for b in seen)
+    assert set(after) == {2}
+
+
+def test_the_pipeline_runs_with_blas_on_one_thread():
+    mesh, cams = band_mesh(), ring_cameras(120, 90)[:4]
+    photos = [render(c, mesh, fine_albedo(), lighting()) for c in cams]
+    views = [ViewInput(name=f"c{i}", camera=c, photo=p, source="test") for i, (c, p) in enumerate(zip(cams, photos))]
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        compute(
+            Options(texture_size=32, max_iter=2, threads=2),
+            SceneInputs(object_name="band", mesh=mesh, views=views),
+            [bake_view(c, mesh) for c in cams],
+            progress=lambda f, m: seen.append(blas_threads()),
+        )
+        after = blas_threads()
+    assert len(seen) > 5 and all(set(b) == {1} for b in seen)
+    assert set(after) == {2}

@@ -2,9 +2,10 @@
 
     .venv/bin/python tools/build_extension.py [--platforms linux-x64 macos-arm64 ...] [--out DIR]
 
-1. Download the wheels that Blender does not bundle (scipy, OpenEXR; Blender
-   ships numpy), pinned in ``requirements.txt``, for each platform and each
-   Python that Blender 4.2 to 5.2 run (3.11 and 3.13), with ``pip download``
+1. Download the wheels that Blender does not bundle (scipy, OpenEXR,
+   threadpoolctl; Blender ships numpy), pinned in ``requirements.txt``, for
+   each platform and each Python that Blender 4.2 to 5.2 run (3.11 and 3.13;
+   threadpoolctl is one pure-Python wheel for all), with ``pip download``
    into the wheels folder (default ``build/wheels/``, git-ignored). Files
    already there are reused.
 2. Stage a copy of ``blender_addon/`` in ``build/extension/`` with the
@@ -34,7 +35,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ADDON = os.path.join(ROOT, "blender_addon")
 
 #: Distributions to ship; their versions are the pins in requirements.txt.
-SHIPPED = ("scipy", "openexr")
+SHIPPED = ("scipy", "openexr", "threadpoolctl")
 
 #: The Pythons of the Blenders supported: 4.2 to 5.0 run 3.11, 5.1 and 5.2 run 3.13.
 PYTHONS = ("3.11", "3.13")
@@ -89,7 +90,9 @@ def download_wheels(platform: str, wheels_dir: str, offline: bool = False) -> li
         out = []
         for req in requirements:
             name, version = _dist_name(req), req.split("==")[1]
-            hits = glob.glob(os.path.join(platform_dir, f"{name}-{version}-{tag}-*.whl"))
+            hits = glob.glob(os.path.join(platform_dir, f"{name}-{version}-{tag}-*.whl")) or glob.glob(
+                os.path.join(platform_dir, f"{name}-{version}-py3-none-any.whl")
+            )
             if not hits:
                 return None
             out.append(sorted(hits)[0])
@@ -120,7 +123,7 @@ def download_wheels(platform: str, wheels_dir: str, offline: bool = False) -> li
             subprocess.run(cmd + requirements, check=True, stdout=subprocess.DEVNULL)
             if (have := present(python)) is None:
                 raise RuntimeError(f"pip did not download all wheels for {platform}, Python {python}")
-        wheels += have
+        wheels += [w for w in have if w not in wheels]  # a pure-Python wheel serves both Pythons
     return wheels
 
 
@@ -156,7 +159,9 @@ def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = F
     """Build one zip per platform; return their paths."""
     wheels = []
     for p in platforms:
-        wheels += download_wheels(p, wheels_dir, offline=offline)
+        # A pure-Python wheel is the same file for every platform: listed once.
+        names = {os.path.basename(w) for w in wheels}
+        wheels += [w for w in download_wheels(p, wheels_dir, offline=offline) if os.path.basename(w) not in names]
     stage_dir = stage(os.path.join(ROOT, "build", "extension", "delight"), wheels, platforms)
     os.makedirs(out_dir, exist_ok=True)
     cli = blender_ext_cli()

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..geometry.texels import texel_totals
 from ..memory import release_free_memory
-from ..parallel import joined, start
+from ..parallel import blas_on_one_thread, joined, start
 from ..progress import check_cancel, sub_progress
 from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
@@ -56,6 +56,7 @@ __all__ = [
 ]
 
 
+@blas_on_one_thread()
 def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
     """Estimate the albedo and the lighting: in two stages when ``params.albedo_lam`` is set, else jointly.
 

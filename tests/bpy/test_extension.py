@@ -20,12 +20,12 @@ pytestmark = [pytest.mark.bpy, pytest.mark.slow]
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 import build_extension  # noqa: E402
 
-# Runs in a fresh interpreter. scipy and OpenEXR must come from the wheels the
-# extension installed, not from this venv: a finder refuses them elsewhere.
+# Runs in a fresh interpreter. scipy, OpenEXR and threadpoolctl must come from the
+# wheels the extension installed, not from this venv: a finder refuses them elsewhere.
 CHILD = r"""
 import importlib.machinery, json, os, sys
 
-SHIPPED = ("scipy", "OpenEXR", "Imath")
+SHIPPED = ("scipy", "OpenEXR", "Imath", "threadpoolctl")
 
 class OnlyFromExtensions:
     def find_spec(self, name, path=None, target=None):
@@ -46,10 +46,11 @@ res = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_def
 assert res == {"FINISHED"}, res
 bpy.ops.wm.open_mainfile(filepath=blend)
 res = bpy.ops.delight.run(method="texture", texture_size=16, max_iter=2, out_dir=out)
-import scipy, OpenEXR
+import scipy, OpenEXR, threadpoolctl
 mod = sys.modules["bl_ext.user_default.delight"]
 print("RESULT " + json.dumps({
     "run": sorted(res), "addon": mod.__file__, "scipy": scipy.__file__, "openexr": OpenEXR.__file__,
+    "threadpoolctl": threadpoolctl.__file__,
     "scipy_version": scipy.__version__,
     "core": sys.modules["bl_ext.user_default.delight.core.solve.solver"].__file__,
     "files": sorted(os.listdir(out)),
@@ -99,11 +100,15 @@ def test_zip_holds_the_add_on_the_real_core_and_the_wheels(extension_zip):
     assert (infos["core/solve/solver.py"].external_attr >> 16) & 0o170000 != 0o120000
     wheels = sorted(n[len("wheels/") :] for n in names if n.startswith("wheels/"))
     # One wheel per package and Blender Python (3.11: Blender 4.2-5.0; 3.13: 5.1-5.2), all for Linux x64,
-    # at the versions requirements.txt pins.
+    # at the versions requirements.txt pins; one pure-Python wheel for both.
     pins = dict(r.split("==") for r in build_extension.shipped_requirements())
-    expected = sorted(f"{name}-{pins[name]}-{tag}" for name in ("openexr", "scipy") for tag in ("cp311", "cp313"))
+    expected = sorted(
+        [f"{name}-{pins[name]}-{tag}" for name in ("openexr", "scipy") for tag in ("cp311", "cp313")]
+        + [f"threadpoolctl-{pins['threadpoolctl']}-py3"]
+    )
     assert sorted("-".join(w.split("-")[:3]) for w in wheels) == expected
-    assert all(w.endswith("_x86_64.whl") and "linux" in w for w in wheels), wheels
+    compiled = [w for w in wheels if not w.endswith("-none-any.whl")]
+    assert len(compiled) == 4 and all(w.endswith("_x86_64.whl") and "linux" in w for w in compiled), wheels
     assert 'id = "delight"' in manifest and 'blender_version_min = "4.2.0"' in manifest
     generated = manifest.split("[build.generated]")[1]
     assert 'platforms = ["linux-x64"]' in generated
@@ -133,7 +138,7 @@ def test_installed_extension_runs_the_operator(extension_zip, tmp_path):
     r = json.loads(line[len("RESULT ") :])
     assert r["run"] == ["FINISHED"]
     ext = str(user / "extensions")
-    for key in ("addon", "scipy", "openexr", "core"):
+    for key in ("addon", "scipy", "openexr", "threadpoolctl", "core"):
         assert r[key].startswith(ext), (key, r[key])
     # Blender installed the wheels of its own Python, the pinned ones.
     assert f"python{sys.version_info[0]}.{sys.version_info[1]}" in r["scipy"]

@@ -284,8 +284,22 @@ def test_bad_options_are_refused_before_reading_the_scene(tmp_path):
 
 
 def test_texture_method_delights(tmp_path):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
     s = build_scene(str(tmp_path))
-    rep = pipeline.run(s.scene, options(tmp_path / "out", method="texture", max_iter=3))
+    blas = []  # per progress message, its stage and the BLAS libraries' threads
+    with threadpool_limits(limits=2, user_api="blas"):  # the tests run with OPENBLAS_NUM_THREADS=1
+        rep = pipeline.run(
+            s.scene,
+            options(tmp_path / "out", method="texture", max_iter=3),
+            progress=lambda f, m: blas.append(
+                (m.split(":")[0], {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+            ),
+        )
+    # From reading the scene to the fused texture, BLAS keeps to one thread (core.parallel.blas_on_one_thread).
+    computing = [b for stage, b in blas if stage != "write"]
+    assert {"gather", "bake", "solve", "fuse"} <= {stage for stage, _ in blas}
+    assert computing and all(b == {1} for b in computing)
     assert rep.iterations >= 1 and len(rep.energy) >= 2
     light = json.loads((tmp_path / "out" / "lighting.json").read_text())
     assert light["channels"] == ["R", "G", "B"] and np.shape([v["sh"] for v in light["views"]]) == (4, 3, 9)
