@@ -70,10 +70,12 @@ def _byte_image_linear(img):
             rgba = read_exr(path)[0]
     finally:
         bpy.data.scenes.remove(scene)
-    # save_render premultiplies by alpha; a photo's colour is wanted straight.
+    rgb = np.ascontiguousarray(rgba[..., :3], dtype=np.float32)
     alpha = rgba[..., 3:4]
-    rgb = np.where(alpha > 0, rgba[..., :3] / np.where(alpha > 0, alpha, 1.0), 0.0)
-    return np.ascontiguousarray(rgb, dtype=np.float32)
+    if not (alpha == 1.0).all():  # save_render premultiplies by alpha; a photo's colour is wanted straight
+        np.divide(rgb, alpha, out=rgb, where=alpha > 0)
+        rgb[alpha[..., 0] <= 0] = 0.0
+    return rgb
 
 
 def image_pixels(img, camera_name, label=None, info=None):
@@ -120,9 +122,9 @@ def image_pixels(img, camera_name, label=None, info=None):
     else:  # grey (+ alpha)
         rgb = np.repeat(px[:, :, :1], 3, axis=2)
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
-    bad = ~np.isfinite(rgb).all(axis=2)
-    if bad.any():
-        raise DelightError(f"camera {camera_name!r}: its photo {label} has {int(bad.sum())} NaN or infinite pixels")
+    if not np.isfinite(rgb).all():  # one pass over the photo; the pixels are counted only to say how many
+        bad = int((~np.isfinite(rgb).all(axis=2)).sum())
+        raise DelightError(f"camera {camera_name!r}: its photo {label} has {bad} NaN or infinite pixels")
     return rgb
 
 

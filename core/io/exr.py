@@ -33,7 +33,8 @@ def _open(path, header_only=False):
     if read_magic(path, 4, "EXR file") != _MAGIC:
         raise ValueError(f"not an OpenEXR file: {path}")
     try:
-        return OpenEXR.File(path, separate_channels=True, header_only=header_only)
+        # R, G, B (and A) come as one interleaved (H, W, 3 or 4) array: a copy and a stack fewer per read.
+        return OpenEXR.File(path, separate_channels=False, header_only=header_only)
     except Exception as exc:  # the binding raises a bare RuntimeError
         raise ValueError(f"cannot read OpenEXR file {path} (corrupt or truncated?): {exc}") from exc
 
@@ -57,12 +58,7 @@ def exr_parts(path) -> list[tuple[str, list[str]]]:
     list of (part name, channel names)
         Channel names as :func:`read_exr` would return them for that part.
     """
-    f = _open(path, header_only=True)
-    out = []
-    for p in f.parts:
-        names = [c.name for c in p.header.get("channels", [])]
-        out.append((p.name(), _ordered([_short_name(n, p.name()) for n in names])))
-    return out
+    return [(p.name(), _ordered(_channel_names(p))) for p in _open(path, header_only=True).parts]
 
 
 def read_exr(path, part=None):
@@ -97,7 +93,7 @@ def read_exr(path, part=None):
     parts = f.parts
     names = [p.name() for p in parts]
     if part is None:
-        chosen = next((p for p in parts if {"R", "G", "B"} <= {_short_name(n, p.name()) for n in p.channels}), parts[0])
+        chosen = next((p for p in parts if {"R", "G", "B"} <= set(_channel_names(p))), parts[0])
     elif isinstance(part, str):
         if part not in names:
             raise ValueError(f"{path}: no part named {part!r} (parts: {names})")
@@ -108,21 +104,36 @@ def read_exr(path, part=None):
         chosen = parts[int(part)]
     if chosen.type() not in (OpenEXR.scanlineimage, OpenEXR.tiledimage):
         raise ValueError(f"{path}: part {chosen.name()!r} is a deep image, which is not supported")
-    by_short = {_short_name(n, chosen.name()): c for n, c in chosen.channels.items()}
-    order = _ordered(list(by_short))
-    if not order:
-        raise ValueError(f"{path}: part {chosen.name()!r} has no channels")
-    planes = []
-    for n in order:
-        px = np.asarray(by_short[n].pixels)
-        if px.ndim != 2:
-            raise ValueError(f"{path}: channel {n!r} has pixel shape {px.shape}, expected 2-D")
-        if planes and px.shape != planes[0].shape:
-            raise ValueError(
-                f"{path}: channel {n!r} is subsampled ({px.shape} vs {planes[0].shape}), which is not supported"
+    groups = []  # (short names, (H, W, k) array) per array the binding gives
+    for key, c in chosen.channels.items():
+        px = np.asarray(c.pixels)
+        if px.ndim == 3 and px.shape[2] in (3, 4):  # R, G, B (A) interleaved, under a layer's prefix or none
+            full = (
+                list("RGBA"[: px.shape[2]]) if key in ("RGB", "RGBA") else [f"{key}.{x}" for x in "RGBA"[: px.shape[2]]]
             )
-        planes.append(px.astype(np.float32))
-    return np.stack(planes, axis=2), order
+        elif px.ndim == 2:
+            full, px = [key], px[:, :, None]
+        else:
+            raise ValueError(f"{path}: channel {key!r} has pixel shape {px.shape}, expected 2-D")
+        groups.append(([_short_name(n, chosen.name()) for n in full], px))
+    if not groups:
+        raise ValueError(f"{path}: part {chosen.name()!r} has no channels")
+    shapes = {g[1].shape[:2] for g in groups}
+    if len(shapes) > 1:
+        raise ValueError(f"{path}: its channels are subsampled ({sorted(shapes)}), which is not supported")
+    order = _ordered([n for names_, _ in groups for n in names_])
+    if len(groups) == 1 and groups[0][0] == order:  # the common case: R, G, B (A) as they are
+        return groups[0][1].astype(np.float32, copy=False), order
+    planes = {n: px[:, :, k] for names_, px in groups for k, n in enumerate(names_)}
+    out = np.empty((*shapes.pop(), len(order)), np.float32)
+    for k, n in enumerate(order):
+        out[:, :, k] = planes[n]
+    return out, order
+
+
+def _channel_names(part) -> list:
+    """The part's channel names as :func:`read_exr` returns them (its prefix removed), from the header."""
+    return [_short_name(c.name, part.name()) for c in part.header.get("channels", [])]
 
 
 def write_exr(path, array, channels=None, half=False):

@@ -143,16 +143,17 @@ def set_render(width, height, pixel_aspect=(1.0, 1.0), scene=None):
 
 
 def write_png(path, codes):
-    """Write an 8-bit RGB PNG of ``codes`` ``(H, W, 3)`` uint8, row 0 at the top, through Blender's image API.
+    """Write an 8-bit PNG of ``codes`` ``(H, W, 3)`` (RGB) or ``(H, W, 4)`` (RGBA, straight alpha) uint8, row 0
+    at the top, through Blender's image API.
 
     The temporary image is removed again, so the file is all that is left.
     """
     codes = np.asarray(codes, dtype=np.uint8)
-    h, w = codes.shape[:2]
-    img = bpy.data.images.new("_write_png", w, h, alpha=False)
+    h, w, c = codes.shape
+    img = bpy.data.images.new("_write_png", w, h, alpha=c == 4)
     try:
         px = np.ones((h, w, 4), dtype=np.float32)
-        px[..., :3] = codes[::-1] / np.float32(255)  # a byte image stores code/255, bottom row first
+        px[..., :c] = codes[::-1] / np.float32(255)  # a byte image stores code/255, bottom row first
         img.pixels.foreach_set(px.ravel())
         img.filepath_raw = path
         img.file_format = "PNG"

@@ -175,6 +175,23 @@ def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
     assert gather(scene).views[0].clipped.tolist() == np.any(codes >= 250, axis=2).tolist()
 
 
+def test_a_photo_with_alpha_gives_its_straight_colour(tmp_path):
+    scene = set_render(16, 12)
+    obj = add_uv_sphere()
+    bpy.context.view_layer.objects.active = obj
+    cam = add_camera("p_cam", (6.0, 0.0, 0.0))
+    codes = np.full((12, 16, 4), 255, np.uint8)
+    codes[..., :3] = 188
+    codes[2, 3] = (40, 200, 120, 128)  # half covered: its colour, not its colour times one half
+    codes[7, 9] = (90, 90, 90, 0)  # not covered at all: nothing
+    img = bpy.data.images.load(write_png(str(tmp_path / "a.png"), codes))
+    set_background(cam, img)
+    photo = gather(scene).views[0].photo
+    expect = srgb_to_linear(codes[..., :3] / 255.0)
+    expect[7, 9] = 0.0
+    np.testing.assert_allclose(photo, expect, rtol=1e-3, atol=1e-5)
+
+
 def test_float_photo_has_no_clipped_pixels(tmp_path):
     s = build_scene(str(tmp_path), n_cameras=1, size=(16, 12), kind="exr")
     assert gather(s.scene).views[0].clipped is None
