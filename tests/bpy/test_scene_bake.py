@@ -147,11 +147,15 @@ def test_mesh_arrays_are_evaluated_world_space():
 # --- photos -----------------------------------------------------------------------------------------
 
 
-def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
+def one_camera_on_a_sphere():
+    """A 16 x 12 render of a UV sphere through one camera, "p_cam", which has no photo yet: (scene, camera)."""
     scene = set_render(16, 12)
-    obj = add_uv_sphere()
-    bpy.context.view_layer.objects.active = obj
-    cam = add_camera("p_cam", (6.0, 0.0, 0.0))
+    bpy.context.view_layer.objects.active = add_uv_sphere()
+    return scene, add_camera("p_cam", (6.0, 0.0, 0.0))
+
+
+def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
+    scene, cam = one_camera_on_a_sphere()
     codes = np.full((12, 16, 3), 188, np.uint8)
     codes[0, 0] = (255, 0, 10)  # top-left pixel: checks the row order
     codes[5, 7] = (4, 100, 250)
@@ -176,10 +180,7 @@ def test_png_photo_is_decoded_through_its_colour_space(tmp_path):
 
 
 def test_a_photo_with_alpha_gives_its_straight_colour(tmp_path):
-    scene = set_render(16, 12)
-    obj = add_uv_sphere()
-    bpy.context.view_layer.objects.active = obj
-    cam = add_camera("p_cam", (6.0, 0.0, 0.0))
+    scene, cam = one_camera_on_a_sphere()
     codes = np.full((12, 16, 4), 255, np.uint8)
     codes[..., :3] = 188
     codes[2, 3] = (40, 200, 120, 128)  # half covered: its colour, not its colour times one half
