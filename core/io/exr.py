@@ -122,6 +122,8 @@ def read_exr(path, part=None):
     if len(shapes) > 1:
         raise ValueError(f"{path}: its channels are subsampled ({sorted(shapes)}), which is not supported")
     order = _ordered([n for names_, _ in groups for n in names_])
+    if sorted(order) != sorted(_channel_names(chosen)):  # the binding grouped channels some other way
+        raise ValueError(f"{path}: channels {sorted(_channel_names(chosen))} came as {order}; cannot tell them apart")
     if len(groups) == 1 and groups[0][0] == order:  # the common case: R, G, B (A) as they are
         return groups[0][1].astype(np.float32, copy=False), order
     planes = {n: px[:, :, k] for names_, px in groups for k, n in enumerate(names_)}
