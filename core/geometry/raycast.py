@@ -263,13 +263,14 @@ def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
         hit &= t > z_near
         if not hit.any():
             continue
-        pix = (r * camera.width + c)[hit]
-        t = t[hit]
+        sel = np.flatnonzero(hit)
+        pix = r[sel] * camera.width + c[sel]
+        t = t[sel]
         np.minimum.at(depth, pix, t)
         win = t <= depth[pix]
-        pix = pix[win]
-        best[pix] = tid[hit][win]
-        bary[pix] = wts[hit][win] / s[hit][win, None]
+        sel, pix = sel[win], pix[win]  # one gather per array below, not a boolean mask twice over
+        best[pix] = tid[sel]
+        bary[pix] = wts[sel] / s[sel, None]
 
 
 def _edge_test(camera, n_corner, cnt, r, c):
