@@ -281,24 +281,30 @@ def test_the_pipeline_leaves_out_a_clipped_highlight_only_one_photo_sees(scene):
     assert told < 0.4 * blind, (told, blind)
 
 
+def detail_of_every_photo(scene, loads, band_rows, **kw):
+    """``detail_albedo`` over all of the scene's photos, read through ``loads``, in bands of ``band_rows`` rows."""
+    mesh, albedo, sigma, cams, _ = scene
+    return detail_albedo(
+        mesh,
+        cams,
+        loads,
+        np.repeat(sigma[None], len(cams), 0),
+        albedo,
+        np.ones((N, N), bool),
+        np.tile([0.05, 0.1, 1.0], (3, 1)),
+        band_pixels=band_rows * FULL[0],
+        **kw,
+    )
+
+
 def test_the_next_band_baked_on_a_thread_of_its_own_changes_no_texel(scene):
     # The bake of the next band (and the reading of the next photo) runs beside the adding in of the last: the
     # same pixels go into the same sums in the same order, so the texture is the same to the bit.
-    mesh, albedo, sigma, cams, photos = scene
+    cams, photos = scene[3], scene[4]
     runs = []
     for threads in (1, 2):
         loads = Loads(photos)
-        out = detail_albedo(
-            mesh,
-            cams,
-            loads,
-            np.repeat(sigma[None], len(cams), 0),
-            albedo,
-            np.ones((N, N), bool),
-            np.tile([0.05, 0.1, 1.0], (3, 1)),
-            band_pixels=60 * FULL[0],  # several bands a photo
-            threads=threads,
-        )
+        out = detail_of_every_photo(scene, loads, 60, threads=threads)  # several bands a photo
         runs.append((out, loads))
     (one, loads_one), (two, loads_two) = runs
     assert one[1].sum() > 0.4 * N * N
@@ -311,7 +317,7 @@ def test_the_next_band_baked_on_a_thread_of_its_own_changes_no_texel(scene):
 def test_a_cancel_in_the_detail_stage_stops_its_reading_ahead_too(scene):
     # The cancel comes while the helper thread bakes ahead: the stage stops within a band, reads no further
     # photo, and leaves no thread of its own behind.
-    mesh, albedo, sigma, cams, photos = scene
+    cams, photos = scene[3], scene[4]
     loads = Loads(photos)
     asked = []
 
@@ -321,18 +327,7 @@ def test_a_cancel_in_the_detail_stage_stops_its_reading_ahead_too(scene):
 
     before = threading.active_count()
     with pytest.raises(Cancelled):
-        detail_albedo(
-            mesh,
-            cams,
-            loads,
-            np.repeat(sigma[None], len(cams), 0),
-            albedo,
-            np.ones((N, N), bool),
-            np.tile([0.05, 0.1, 1.0], (3, 1)),
-            band_pixels=120 * FULL[0],  # 3 bands a photo
-            cancel=cancel,
-            threads=2,
-        )
+        detail_of_every_photo(scene, loads, 120, cancel=cancel, threads=2)  # 3 bands a photo
     assert loads.calls == 2 < len(cams)
     assert threading.active_count() == before
 
