@@ -123,7 +123,7 @@ def download_wheels(platform: str, wheels_dir: str, offline: bool = False) -> li
             subprocess.run(cmd + requirements, check=True, stdout=subprocess.DEVNULL)
             if (have := present(python)) is None:
                 raise RuntimeError(f"pip did not download all wheels for {platform}, Python {python}")
-        wheels += [w for w in have if w not in wheels]  # a pure-Python wheel serves both Pythons
+        wheels += have
     return wheels
 
 
@@ -157,12 +157,12 @@ def stage(stage_dir: str, wheels: list[str], platforms: list[str]) -> str:
 
 def build(platforms: list[str], out_dir: str, wheels_dir: str, offline: bool = False) -> list[str]:
     """Build one zip per platform; return their paths."""
-    wheels = []
+    # By file name: a pure-Python wheel is the same file for every platform and Python, shipped once.
+    wheels = {}
     for p in platforms:
-        # A pure-Python wheel is the same file for every platform: listed once.
-        names = {os.path.basename(w) for w in wheels}
-        wheels += [w for w in download_wheels(p, wheels_dir, offline=offline) if os.path.basename(w) not in names]
-    stage_dir = stage(os.path.join(ROOT, "build", "extension", "delight"), wheels, platforms)
+        for w in download_wheels(p, wheels_dir, offline=offline):
+            wheels.setdefault(os.path.basename(w), w)
+    stage_dir = stage(os.path.join(ROOT, "build", "extension", "delight"), list(wheels.values()), platforms)
     os.makedirs(out_dir, exist_ok=True)
     cli = blender_ext_cli()
     before = set(glob.glob(os.path.join(out_dir, "*.zip")))
