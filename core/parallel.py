@@ -8,11 +8,13 @@ several cores at once without copying the arrays into other processes. The BLAS 
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import itertools
 import os
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
-__all__ = ["available_cores", "blas_on_one_thread", "joined", "prefetched", "resolve_threads", "start", "thread_map"]
+__all__ = ["available_cores", "blas_on_one_thread", "joined", "resolve_threads", "start", "streamed", "thread_map"]
 
 
 def available_cores() -> int:
@@ -89,30 +91,30 @@ def joined(future: Future):
         raise
 
 
-_END = object()
+def streamed(fn, items, threads: int | None = None):
+    """``fn(x)`` for each item of the iterable ``items``, yielded in order, worked on by up to ``threads`` threads.
 
-
-def prefetched(items, threads: int | None = None):
-    """The items of the iterable ``items``, each next one made on a thread of its own while the caller uses this one.
-
-    For a loop whose items take as long to make as to use (the detail stage bakes a band of a photo while the
-    last one is divided and added in). At most one item is made ahead. With one thread (``threads``, as
-    :func:`resolve_threads`) it is ``items`` itself. When the caller stops early (an error, a cancel), the item
-    being made is waited for, and no other is begun.
+    For a loop over more work than memory holds at once (the detail stage's bands of full-resolution photos):
+    items are drawn from ``items`` in the calling thread, and only as threads come free, so while the caller
+    uses one result, ``threads`` items are begun and one more at most is drawn. With one thread (``threads``, as
+    :func:`resolve_threads`) it is ``map(fn, items)``. An error of ``fn`` is raised in the caller at its item's
+    turn. When the caller stops early (an error, a cancel), the items begun are waited for and no other is begun.
     """
-    it = iter(items)
-    if resolve_threads(threads) <= 1:
-        yield from it
+    n = resolve_threads(threads)
+    if n <= 1:
+        yield from map(fn, items)
         return
-    pool = ThreadPoolExecutor(max_workers=1)
+    it = iter(items)
+    pool = ThreadPoolExecutor(max_workers=n)
+    pending = collections.deque()
     try:
-        ahead = pool.submit(next, it, _END)
         while True:
-            item = ahead.result()
-            if item is _END:
+            # n items at work while the caller uses the one before them.
+            for x in itertools.islice(it, n + 1 - len(pending)):
+                pending.append(pool.submit(fn, x))
+            if not pending:
                 return
-            ahead = pool.submit(next, it, _END)
-            yield item
+            yield pending.popleft().result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 

@@ -10,7 +10,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from core.evaluate.synthetic import sphere_scene
 from core.geometry.bake import bake_view
-from core.parallel import blas_on_one_thread, joined, prefetched, start, thread_map
+from core.parallel import blas_on_one_thread, joined, start, streamed, thread_map
 from core.pipeline import Options, compute
 from core.scene import SceneInputs, ViewInput
 from core.solve.solver import SolverParams
@@ -99,61 +99,62 @@ def test_a_block_that_goes_through_does_not_wait():
     assert future.result(timeout=10)
 
 
-def test_prefetched_makes_the_next_item_while_the_caller_uses_this_one():
-    made = [threading.Event() for _ in range(4)]
-    makers = set()
+def test_streamed_works_on_the_next_items_while_the_caller_uses_this_one():
+    begun = [threading.Event() for _ in range(6)]
+    workers, drawn = set(), []
+
+    def work(i):
+        workers.add(threading.get_ident())
+        begun[i].set()
+        return i * i
 
     def items():
-        for i in range(4):
-            makers.add(threading.get_ident())
-            made[i].set()
+        for i in range(6):
+            drawn.append(i)
             yield i
 
     out = []
-    for i in prefetched(items(), threads=2):
-        if i < 3:
-            assert made[i + 1].wait(10)  # made while item i is in use: never set if it were made on demand
-        out.append(i)
-    assert out == [0, 1, 2, 3]
-    assert makers and threading.get_ident() not in makers
+    for k, r in enumerate(streamed(work, items(), threads=2)):
+        for j in range(k + 1, min(k + 3, 6)):  # two at work while result k is in use: never if made on demand
+            assert begun[j].wait(10)
+        assert len(drawn) <= k + 3  # and one more at most drawn
+        out.append(r)
+    assert out == [i * i for i in range(6)]
+    assert workers and threading.get_ident() not in workers
 
 
-def test_prefetched_with_one_thread_is_the_items_themselves():
-    makers = []
+def test_streamed_with_one_thread_is_map():
+    where = []
 
-    def items():
-        for i in range(3):
-            makers.append(threading.get_ident())
-            yield i
+    def work(i):
+        where.append(threading.get_ident())
+        return i + 1
 
-    assert list(prefetched(items(), threads=1)) == [0, 1, 2]
-    assert set(makers) == {threading.get_ident()}
+    assert list(streamed(work, range(3), threads=1)) == [1, 2, 3]
+    assert set(where) == {threading.get_ident()}
 
 
-def test_prefetched_stops_making_items_when_the_caller_stops():
-    made = []
-
-    def items():
-        for i in range(100):
-            made.append(i)
-            yield i
-
+def test_streamed_begins_no_more_items_when_the_caller_stops():
+    begun = []
+    before = threading.active_count()
     with pytest.raises(RuntimeError, match="cancelled"):
-        for _ in prefetched(items(), threads=2):
+        for _ in streamed(begun.append, range(100), threads=2):
             raise RuntimeError("cancelled")
-    assert made in ([0], [0, 1])  # the one made ahead, if begun, was finished; no other was begun
+    assert len(begun) <= 3  # the items drawn ahead, if begun, were finished; no other was begun
+    assert threading.active_count() == before
 
 
-def test_prefetched_raises_an_error_of_the_items_in_the_caller():
-    def items():
-        yield 1
-        raise ValueError("unreadable photo")
+def test_streamed_raises_an_error_in_the_caller_at_its_turn():
+    def work(i):
+        if i == 1:
+            raise ValueError("unreadable photo")
+        return i
 
     got = []
     with pytest.raises(ValueError, match="unreadable photo"):
-        for i in prefetched(items(), threads=2):
+        for i in streamed(work, range(5), threads=2):
             got.append(i)
-    assert got == [1]
+    assert got == [0]
 
 
 def blas_threads():

@@ -143,3 +143,26 @@ def test_the_transfer_rows_are_nu_then_the_sun_column_with_shadows(scene):
     block = row_blocks([n.shape[0]], 10)[0]
     assert transfer_rows(n, None, None, sun, p, out=block) is block and np.array_equal(block, rows)
     assert transfer_rows(n).shape == (n.shape[0], 9)
+
+
+def test_the_shading_rows_are_the_transfer_rows_times_the_lighting(scene):
+    # The detail stage's shading puts the lighting into the occlusion grid's cells before interpolating: the
+    # same shading as the solve's transfer rows times the lighting, with and without occlusion and the sun.
+    from core.geometry.sun import SunLight
+    from core.geometry.transfer import occlusion_grid, shading_rows, transfer_rows
+
+    _, masks, positions, normals = _views(scene, 1.0)
+    m = masks[0]
+    n, p = normals[0][m].astype(np.float32), positions[0][m]
+    uv = (p[:, :2] / 4.0 + 0.5).astype(np.float32)  # the ground's and the box's points, laid out from above
+    uvs = [np.where(mk[..., None], pos[..., :2] / 4.0 + 0.5, 0).astype(np.float32) for mk, pos in zip(masks, positions)]
+    cells = occlusion_grid(scene, uvs, masks, normals, positions, grid=16, n_directions=32, resolution=64)
+    assert cells.valid.sum() > 50 and np.abs(cells.occ).max() > 0.05  # the box occludes the ground around it
+    sun = SunLight(SUN, scene)
+    sigma = np.random.default_rng(1).uniform(-0.5, 1.0, (3, 10)).astype(np.float32)
+    for grid, light in ((None, None), (cells, None), (None, sun), (cells, sun)):
+        k = 9 + (light is not None)
+        expected = transfer_rows(n, uv, grid, light, p) @ sigma[:, :k].T
+        got = shading_rows(sigma[:, :k], n, uv, grid, light, p)
+        assert got.shape == (n.shape[0], 3) and got.dtype == np.float32
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())

@@ -10,6 +10,7 @@ the interpolated corner normal, flipped when the ray hits a face's back side.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..scene import MeshArrays
 from .camera import Camera
 from .raycast import raycast
 
-__all__ = ["ViewBake", "bake_view", "bake_views", "bake_rows", "mesh_normals"]
+__all__ = ["ViewBake", "PixelBake", "bake_pixels", "bake_view", "bake_views", "bake_rows", "row_bands", "mesh_normals"]
 
 
 @dataclass
@@ -61,49 +62,77 @@ def mesh_normals(mesh):
     return corner, _face_normals(mesh, corner)
 
 
-def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
-    """Bake one :class:`core.geometry.camera.Camera` against :class:`scene.MeshArrays`."""
+@dataclass
+class PixelBake:
+    """What one view sees of the target mesh, at the pixels whose ray hits it only (in row order).
+
+    :class:`ViewBake`'s values without the pixels that miss, for a loop over the hits of a large photo.
+    """
+
+    shape: tuple  # (H, W) of the view
+    pixel: np.ndarray  # (P,) intp flat index (row * W + column) of each pixel hit, increasing
+    normal: np.ndarray  # (P, 3) float32
+    uv: np.ndarray  # (P, 2) float32
+    position: np.ndarray  # (P, 3) float32
+    view_weight: np.ndarray  # (P,) float32
+
+    def image(self) -> ViewBake:
+        """The same as a :class:`ViewBake`: every pixel of the view."""
+        h, w = self.shape
+        mask = np.zeros(h * w, bool)
+        mask[self.pixel] = True
+        out = []
+        for values, fill in ((self.normal, 0.0), (self.uv, 0.0), (self.position, np.nan), (self.view_weight, 0.0)):
+            img = np.full((h * w, *values.shape[1:]), fill, np.float32)
+            img[self.pixel] = values
+            out.append(img.reshape(h, w, *values.shape[1:]))
+        normal, uv, position, weight = out
+        return ViewBake(mask=mask.reshape(h, w), normal=normal, uv=uv, position=position, view_weight=weight)
+
+
+def bake_pixels(camera, mesh, corner_normals=None, face_normals=None) -> PixelBake:
+    """Bake one :class:`core.geometry.camera.Camera` against :class:`scene.MeshArrays`, at the pixels hit."""
     if corner_normals is None:
         corner_normals = _corner_normals(mesh)
     if face_normals is None:
         face_normals = _face_normals(mesh, corner_normals)
     hits = raycast(camera, mesh.tri_pos)
-    mask = hits.mask
-    h, w = mask.shape
-    position = np.full((h, w, 3), np.nan, dtype=np.float32)
-    normal = np.zeros((h, w, 3), dtype=np.float32)
-    uv = np.zeros((h, w, 2), dtype=np.float32)
-    weight = np.zeros((h, w), dtype=np.float32)
-    if mask.any():
-        tri = hits.tri[mask]
-        b = hits.bary[mask]
-        p = np.einsum("nc,nck->nk", b, mesh.tri_pos[tri])
-        n = np.einsum("nc,nck->nk", b, corner_normals[tri].astype(np.float64))
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        to_cam = camera.center - p
-        to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-30)
-        # Cycles flips the shading normal of a back-facing hit.
-        back = np.einsum("ij,ij->i", face_normals[tri], to_cam) < 0
-        n[back] *= -1
-        position[mask] = p
-        normal[mask] = n
-        uv[mask] = np.einsum("nc,nck->nk", b, mesh.tri_uv[tri].astype(np.float64))
-        weight[mask] = np.clip(np.einsum("ij,ij->i", n, to_cam), 0.0, 1.0)
-    return ViewBake(mask=mask, normal=normal, uv=uv, position=position, view_weight=weight)
+    pixel = np.flatnonzero(hits.tri >= 0)
+    tri = hits.tri.ravel()[pixel]
+    b = hits.bary.reshape(-1, 3)[pixel]
+    del hits
+    p = np.einsum("nc,nck->nk", b, mesh.tri_pos[tri])
+    n = np.einsum("nc,nck->nk", b, corner_normals[tri].astype(np.float64))
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    to_cam = camera.center - p
+    to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-30)
+    # Cycles flips the shading normal of a back-facing hit.
+    back = np.einsum("ij,ij->i", face_normals[tri], to_cam) < 0
+    n[back] *= -1
+    return PixelBake(
+        shape=(camera.height, camera.width),
+        pixel=pixel,
+        normal=n.astype(np.float32),
+        uv=np.einsum("nc,nck->nk", b, mesh.tri_uv[tri].astype(np.float64)).astype(np.float32),
+        position=p.astype(np.float32),
+        view_weight=np.clip(np.einsum("ij,ij->i", n, to_cam), 0.0, 1.0).astype(np.float32),
+    )
 
 
-def bake_rows(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):
-    """Bake ``camera`` in bands of whole rows of about ``max_pixels`` pixels, to bound the memory of a large photo.
+def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
+    """Bake one :class:`core.geometry.camera.Camera` against :class:`scene.MeshArrays`."""
+    return bake_pixels(camera, mesh, corner_normals, face_normals).image()
 
-    Each band is :func:`bake_view` of the camera cropped to its rows, against
-    the triangles whose projection reaches them (all triangles that cross the
-    camera plane), so it equals the same rows of the whole view's bake.
+
+def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):
+    """The bands of whole rows of about ``max_pixels`` pixels that :func:`bake_rows` bakes, each still to bake.
 
     Yields
     ------
     first_row : int
-    bake : ViewBake
-        The band's rows.
+    bake : callable() -> PixelBake
+        The band's rows baked: :func:`bake_pixels` of the camera cropped to them, against the triangles whose
+        projection reaches them (all triangles that cross the camera plane).
     """
     if corner_normals is None or face_normals is None:
         corner_normals, face_normals = mesh_normals(mesh)
@@ -125,7 +154,22 @@ def bake_rows(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, fa
         k[1, 2] -= r0
         band = Camera(K=k, R=camera.R, t=camera.t, width=w, height=r1 - r0)
         part = MeshArrays(tri_pos=mesh.tri_pos[sel], tri_uv=mesh.tri_uv[sel], tri_vert=mesh.tri_vert[sel], uv_map="")
-        yield r0, bake_view(band, part, corner_normals[sel], face_normals[sel])
+        yield r0, functools.partial(bake_pixels, band, part, corner_normals[sel], face_normals[sel])
+
+
+def bake_rows(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):
+    """Bake ``camera`` in bands of whole rows of about ``max_pixels`` pixels, to bound the memory of a large photo.
+
+    Each band (:func:`row_bands`) equals the same rows of the whole view's bake.
+
+    Yields
+    ------
+    first_row : int
+    bake : ViewBake
+        The band's rows.
+    """
+    for r0, bake in row_bands(camera, mesh, max_pixels, corner_normals, face_normals):
+        yield r0, bake().image()
 
 
 def bake_views(scene, inputs, progress=None, cancel=None, threads=None) -> list:

@@ -47,6 +47,7 @@ __all__ = [
     "OcclusionGrid",
     "occlusion_grid",
     "pixel_transfer",
+    "shading_rows",
     "transfer_rows",
 ]
 
@@ -226,6 +227,20 @@ class OcclusionGrid:
             "kj,kjc->kc", wts, self.occ[idx]
         )
 
+    def shading(self, uv, normal, sigma) -> np.ndarray:
+        """``transfer(uv, normal) @ sigma.T``, ``(P, C)`` float32, for a lighting ``sigma`` ``(C, K)``.
+
+        The lighting goes into the cells first, so each point interpolates C numbers rather than K.
+        """
+        k = self.occ.shape[1]
+        sigma = np.asarray(sigma, np.float32)
+        idx, wts = bilinear_texels(uv, self.valid)
+        lit = (self.occ @ sigma.T)[idx]  # (P, 4, C)
+        s = sh_basis(normal, order=round(k**0.5) - 1) @ (sigma * open_factor(k).astype(np.float32)).T
+        for j in range(4):
+            s += wts[:, j, None] * lit[:, j]
+        return s
+
 
 def occlusion_grid(
     tri_pos,
@@ -320,6 +335,17 @@ def pixel_transfer(
         threads,
     )
     return [cells.transfer(uv[mask], nrm[mask]) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
+
+
+def shading_rows(sigma, normal, uv=None, cells=None, sun=None, position=None) -> np.ndarray:
+    """``transfer_rows(normal, uv, cells, sun, position) @ sigma.T``: the shading ``(P, C)`` float32 of a lighting
+    ``sigma`` ``(C, K)``, without the ``(P, K)`` transfer (:meth:`OcclusionGrid.shading`)."""
+    sigma = np.asarray(sigma, np.float32)
+    k = sigma.shape[1] - (sun is not None)
+    s = cells.shading(uv, normal, sigma[:, :k]) if cells is not None else sh_basis(normal) @ sigma[:, :k].T
+    if sun is not None:
+        s += sun.term(position, normal)[:, None] * sigma[:, k]
+    return s
 
 
 def transfer_rows(normal, uv=None, cells=None, sun=None, position=None, out=None) -> np.ndarray:

@@ -4,7 +4,7 @@ The solve runs on photos downscaled to the working resolution. That is plenty fo
 by nature, but the albedo then holds no finer detail than those copies. Under the solved lighting, a pixel's
 albedo is its value divided by its shading (what :func:`core.solve.lighting.division_start` does for one
 observation), and that needs no solve: so this stage takes each photo at its own resolution in turn, bakes that
-view in bands of rows (:func:`core.geometry.bake.bake_rows`), divides every pixel by its shading
+view in bands of rows (:func:`core.geometry.bake.row_bands`), divides every pixel by its shading
 ``sigma_v . T`` (T the transfer at the pixel, :class:`core.geometry.transfer.OcclusionGrid`; the shading floored
 as the solve floors it) and adds the quotient into the texel that holds its UV (as
 :func:`core.texture.fuse.fuse_views` does), each pixel weighted by
@@ -17,8 +17,9 @@ as the solve floors it) and adds the quotient into the texel that holds its UV (
   biweight of the log ratio between the view's own quotient and the median of all views' quotients, so that a
   highlight, a misregistered edge or a shadow the lighting does not explain, seen in one photo, drops out.
 
-Memory holds the texture's accumulators and one photo (its bake in bands), or two while the next photo is read
-(on a thread of the stage's own, which bakes each band while the last one is added in). A texel's value is the
+The bands are baked and divided on the stage's threads, a few at a time, and added in by the calling thread in
+their order (so the texture does not depend on the threads). Memory holds the texture's accumulators and one
+photo, or two while the next photo's first bands are at work. A texel's value is the
 weighted mean of its pixels, with a small weight (:data:`PRIOR_WEIGHT`) of the working-resolution albedo; a texel
 no pixel reached takes its neighbours' pixels, or else the working-resolution albedo.
 """
@@ -31,11 +32,11 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ..errors import DelightError
-from ..geometry.bake import bake_rows, mesh_normals
+from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
-from ..geometry.transfer import transfer_rows
-from ..parallel import prefetched
+from ..geometry.transfer import shading_rows
+from ..parallel import resolve_threads, streamed
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
@@ -74,8 +75,7 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
     sun : core.geometry.sun.SunLight, optional
         A sun term, the last of the lighting's coefficients; ``position`` (P, 3) the pixels' world points.
     """
-    t = transfer_rows(normal, uv, cells, sun, position)
-    s = t @ np.asarray(sigma_view, np.float32).T
+    s = shading_rows(sigma_view, normal, uv, cells, sun, position)
     if floor is None:
         return s
     if values is None:
@@ -239,8 +239,8 @@ def detail_albedo(
         Each view's camera on its full-resolution pixel grid.
     load : callable(i) -> (photo, clipped)
         View i's photo, ``(H, W, C)`` float32 linear (row 0 at the top), and its clipped pixels ``(H, W)`` bool
-        or None. Called once per view, in order (from a thread of the stage's own when ``threads`` > 1); the
-        photo is let go once the next one is in use.
+        or None. Called once per view, in order, from the calling thread; the photo is let go once its bands are
+        done.
     sigma : (m, C, K) array
         The solved lighting of each view (in the scale of ``base``).
     base : (N, N, C) array
@@ -259,13 +259,15 @@ def detail_albedo(
     progress : callable(fraction, message), optional
     cancel : callable() -> bool, optional
     band_pixels : int
-        Pixels per band of the bake.
+        Pixels per band of the bake, at most (a photo has a band per thread at least).
     sun : core.geometry.sun.SunLight, optional
         The sun term, as in the solve (the last of ``sigma``'s coefficients).
     outlines : bool
         Leave out the pixels on each photo's outline, which hold the background blended in
         (:func:`core.texture.fill.outline_only`): a texel only they land in takes its neighbours' pixels, or
         ``base``, and counts as reached.
+    threads : int or None
+        Bands at work at once (None: every available core).
 
     Returns
     -------
@@ -287,6 +289,7 @@ def detail_albedo(
     inside_flat = np.asarray(inside, bool).ravel()
     outlined = np.zeros(n * n, bool)
     m = len(cameras)
+    workers = resolve_threads(threads)
     done = 0.0
     total = float(sum(cam.width * cam.height for cam in cameras)) or 1.0
     t0 = time.perf_counter()
@@ -298,52 +301,66 @@ def detail_albedo(
                 raise DelightError(
                     f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
                 )
-            for r0, b in bake_rows(cam, mesh, band_pixels, corner, face):
-                yield v, photo, clipped, r0, b
+            cells_of = None
+            if weights is not None:
+                cells_of = (
+                    _working_pixel(cam.height, weights[v].shape[0]),
+                    _working_pixel(cam.width, weights[v].shape[1]),
+                )
+            # A band per thread at least: then the bands at work hold this photo and the last one, no other.
+            pixels = min(band_pixels, -(-cam.height // workers) * cam.width)
+            for r0, bake in row_bands(cam, mesh, pixels, corner, face):
+                yield v, photo, clipped, cells_of, r0, bake
             del photo, clipped  # this generator's hold on it, before the next one is read
+
+    def divided(band):
+        """A band baked and divided by its shading: its pixels' texels, weights and quotients."""
+        v, photo, clipped, cells_of, r0, bake = band
+        b = bake()
+        h, width = b.shape
+        keep = np.ones(b.pixel.size, bool)
+        if clipped is not None and use_clipped:
+            keep &= ~clipped[r0 : r0 + h].ravel()[b.pixel]
+        edge = None
+        if outlines:
+            mask = np.zeros(h * width, bool)
+            mask[b.pixel] = True
+            on_edge = outline_pixels(mask.reshape(h, width)).ravel()[b.pixel]
+            edge = texel_index(b.uv[keep & on_edge], n)
+            keep &= ~on_edge
+        pixel, uv = b.pixel[keep], b.uv[keep]
+        pos = None if sun is None else b.position[keep]
+        values = photo[r0 : r0 + h].reshape(h * width, -1)[pixel]
+        a = shading(b.normal[keep], uv, sigma[v], cells, floor, sun, pos, values)
+        q = values / a
+        # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
+        # (division_start's): dark pixels, whose quotient carries the most noise, count least.
+        w = b.view_weight[keep] * np.mean(a, axis=1) ** 2
+        if cells_of is not None:
+            rr, cc = np.divmod(pixel, width)
+            w = w * weights[v][cells_of[0][r0 + rr], cells_of[1][cc]]
+        texel = texel_index(uv, n)
+        keep = texel >= 0
+        keep[keep] = inside_flat[texel[keep]]
+        return v, h, edge, texel[keep], w[keep], q[keep]
 
     check_cancel(cancel)
     if progress is not None:
         progress(0.0, f"photo 1/{m}")
     last = None
-    # The next band is baked (and the next photo read) while this one is divided and added in.
-    for v, photo, clipped, r0, b in prefetched(bands(), threads):
+    # Bands are baked and divided on the threads while the last one is added in, in order, here.
+    for v, h, edge, texel, w, q in streamed(divided, bands(), workers):
         check_cancel(cancel)
-        cam = cameras[v]
         if v != last:
             last = v
             if progress is not None:
                 progress(done / total, f"photo {v + 1}/{m}")
-            if weights is not None:
-                rows_lo = _working_pixel(cam.height, weights[v].shape[0])
-                cols_lo = _working_pixel(cam.width, weights[v].shape[1])
-        h = b.mask.shape[0]
-        mask = b.mask if clipped is None or not use_clipped else b.mask & ~clipped[r0 : r0 + h]
-        if outlines:
-            edge = mask & outline_pixels(b.mask)
-            t = texel_index(b.uv[edge], n)
-            outlined[t[t >= 0]] = True
-            mask = mask & ~edge
-        rr, cc = np.nonzero(mask)
-        if rr.size:
-            uv = b.uv[rr, cc]
-            pos = None if sun is None else b.position[rr, cc]
-            values = photo[r0 + rr, cc]
-            a = shading(b.normal[rr, cc], uv, sigma[v], cells, floor, sun, pos, values)
-            q = values / a
-            # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
-            # (division_start's): dark pixels, whose quotient carries the most noise, count least.
-            w = b.view_weight[rr, cc] * np.mean(a, axis=1) ** 2
-            if weights is not None:
-                w = w * weights[v][rows_lo[r0 + rr], cols_lo[cc]]
-            texel = texel_index(uv, n)
-            keep = texel >= 0
-            keep[keep] = inside_flat[texel[keep]]
-            _splat(sums, texel[keep], w[keep], q[keep])
-        done += h * cam.width
+        if edge is not None:
+            outlined[edge[edge >= 0]] = True
+        _splat(sums, texel, w, q)
+        done += h * cameras[v].width
         if progress is not None:
             progress(done / total, f"photo {v + 1}/{m}")
-        del photo, clipped, b
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
     albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
