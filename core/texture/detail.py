@@ -182,14 +182,17 @@ def _working_pixel(n_full, n_work):
     return np.minimum(((np.arange(n_full) + 0.5) * (n_work / n_full)).astype(np.intp), n_work - 1)
 
 
-def _splat(sums, texel, w, q):
-    """Add pixels to their texels (flat indices): weights ``w`` (P,) and quotients ``q`` (P, C).
+def _texel_sums(texel, w, q):
+    """Pixels summed per texel (flat indices), weights ``w`` (P,) and quotients ``q`` (P, C).
 
-    ``sums`` holds per texel the sum of w, then of w q per channel.
+    Returns the texels (each once) and per texel the sum of w, then of w q per channel: ``(1 + C, T)``.
     """
-    np.add.at(sums[0], texel, w)
+    texels, at = np.unique(texel, return_inverse=True)
+    sums = np.empty((1 + q.shape[1], texels.size), np.float32)
+    sums[0] = np.bincount(at, w, texels.size)
     for k in range(q.shape[1]):
-        np.add.at(sums[1 + k], texel, w * q[:, k])
+        sums[1 + k] = np.bincount(at, w * q[:, k], texels.size)
+    return texels, sums
 
 
 def _mean(sums, base, prior):
@@ -342,14 +345,14 @@ def detail_albedo(
         texel = texel_index(uv, n)
         keep = texel >= 0
         keep[keep] = inside_flat[texel[keep]]
-        return v, h, edge, texel[keep], w[keep], q[keep]
+        return v, h, edge, *_texel_sums(texel[keep], w[keep], q[keep])
 
     check_cancel(cancel)
     if progress is not None:
         progress(0.0, f"photo 1/{m}")
     last = None
     # Bands are baked and divided on the threads while the last one is added in, in order, here.
-    for v, h, edge, texel, w, q in streamed(divided, bands(), workers):
+    for v, h, edge, texels, band_sums in streamed(divided, bands(), workers):
         check_cancel(cancel)
         if v != last:
             last = v
@@ -357,7 +360,7 @@ def detail_albedo(
                 progress(done / total, f"photo {v + 1}/{m}")
         if edge is not None:
             outlined[edge[edge >= 0]] = True
-        _splat(sums, texel, w, q)
+        sums[:, texels] += band_sums
         done += h * cameras[v].width
         if progress is not None:
             progress(done / total, f"photo {v + 1}/{m}")
