@@ -1,6 +1,7 @@
 """The detail stage (core.texture.detail): the albedo again from the photos at full resolution, one at a time."""
 
 import threading
+import time
 import weakref
 from dataclasses import replace
 
@@ -315,8 +316,8 @@ def test_the_next_band_baked_on_a_thread_of_its_own_changes_no_texel(scene):
 
 
 def test_a_cancel_in_the_detail_stage_stops_its_reading_ahead_too(scene):
-    # The cancel comes while the helper thread bakes ahead: the stage stops within a band, reads no further
-    # photo, and leaves no thread of its own behind.
+    # The cancel comes while the threads bake ahead and the third photo is read: the stage stops within a band,
+    # reads no further photo, and leaves no thread of its own behind.
     cams, photos = scene[3], scene[4]
     loads = Loads(photos)
     asked = []
@@ -325,10 +326,15 @@ def test_a_cancel_in_the_detail_stage_stops_its_reading_ahead_too(scene):
         asked.append(1)
         return len(asked) > 4  # in the second photo's bands
 
+    def slow(i):  # the photo read ahead is still being read when the cancel comes
+        if i == 2:
+            time.sleep(0.5)
+        return loads(i)
+
     before = threading.active_count()
     with pytest.raises(Cancelled):
-        detail_of_every_photo(scene, loads, 120, cancel=cancel, threads=2)  # 3 bands a photo
-    assert loads.calls == 2 < len(cams)
+        detail_of_every_photo(scene, slow, 120, cancel=cancel, threads=2)  # 3 bands a photo
+    assert loads.calls == 3 < len(cams)
     assert threading.active_count() == before
 
 

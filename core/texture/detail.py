@@ -19,14 +19,16 @@ as the solve floors it) and adds the quotient into the texel that holds its UV (
 
 The bands are baked and divided on the stage's threads, a few at a time, and added in by the calling thread in
 their order (so the texture does not depend on the threads). Memory holds the texture's accumulators and one
-photo, or two while the next photo's first bands are at work. A texel's value is the
+photo, or two while the next one is read (on a thread of its own, beside the bands). A texel's value is the
 weighted mean of its pixels, with a small weight (:data:`PRIOR_WEIGHT`) of the working-resolution albedo; a texel
 no pixel reached takes its neighbours' pixels, or else the working-resolution albedo.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
+from concurrent.futures import wait
 
 import numpy as np
 import scipy.ndimage as ndi
@@ -36,7 +38,7 @@ from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import shading_rows
-from ..parallel import resolve_threads, streamed
+from ..parallel import resolve_threads, start, streamed
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
@@ -298,26 +300,35 @@ def detail_albedo(
     t0 = time.perf_counter()
 
     def bands():
-        for v, cam in enumerate(cameras):
-            photo, clipped = load(v)
-            if photo.shape[:2] != (cam.height, cam.width):
-                raise DelightError(
-                    f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
-                )
-            cells_of = None
-            if weights is not None:
-                cells_of = (
-                    _working_pixel(cam.height, weights[v].shape[0]),
-                    _working_pixel(cam.width, weights[v].shape[1]),
-                )
-            # A band per thread at least: then the bands at work hold this photo and the last one, no other.
-            pixels = min(band_pixels, -(-cam.height // workers) * cam.width)
-            for r0, bake in row_bands(cam, mesh, pixels, corner, face):
-                yield v, photo, clipped, cells_of, r0, bake
-            del photo, clipped  # this generator's hold on it, before the next one is read
+        ahead = None  # the next photo, read on a thread of its own while this one's bands are at work
+        try:
+            for v, cam in enumerate(cameras):
+                photo, clipped = ahead.result() if ahead is not None else load(v)
+                ahead = None
+                if photo.shape[:2] != (cam.height, cam.width):
+                    raise DelightError(
+                        f"photo {v + 1} is {photo.shape[1]}x{photo.shape[0]}, its camera {cam.width}x{cam.height}"
+                    )
+                cells_of = None
+                if weights is not None:
+                    cells_of = (
+                        _working_pixel(cam.height, weights[v].shape[0]),
+                        _working_pixel(cam.width, weights[v].shape[1]),
+                    )
+                # More bands than threads: once band `workers` is drawn, every band of the last photo has been
+                # added in, and the next photo is read; so no more than two are held at once.
+                pixels = min(band_pixels, -(-cam.height // (workers + 1)) * cam.width)
+                for j, (r0, bake) in enumerate(row_bands(cam, mesh, pixels, corner, face)):
+                    if workers > 1 and j == workers and v + 1 < m:
+                        ahead = start(load, v + 1)
+                    yield v, photo, clipped, cells_of, r0, bake
+                del photo, clipped  # this generator's hold on it, before the next one is read
+        finally:
+            if ahead is not None:  # stopped early: the photo being read is waited for
+                wait([ahead])
 
     def divided(band):
-        """A band baked and divided by its shading: its pixels' texels, weights and quotients."""
+        """A band baked and divided by its shading: the texels its pixels land in, and their sums there."""
         v, photo, clipped, cells_of, r0, bake = band
         b = bake()
         h, width = b.shape
@@ -352,18 +363,21 @@ def detail_albedo(
         progress(0.0, f"photo 1/{m}")
     last = None
     # Bands are baked and divided on the threads while the last one is added in, in order, here.
-    for v, h, edge, texels, band_sums in streamed(divided, bands(), workers):
-        check_cancel(cancel)
-        if v != last:
-            last = v
+    source = bands()
+    work = streamed(divided, source, workers)
+    with contextlib.closing(source), contextlib.closing(work):  # stopped early: no thread left at work
+        for v, h, edge, texels, band_sums in work:
+            check_cancel(cancel)
+            if v != last:
+                last = v
+                if progress is not None:
+                    progress(done / total, f"photo {v + 1}/{m}")
+            if edge is not None:
+                outlined[edge[edge >= 0]] = True
+            sums[:, texels] += band_sums
+            done += h * cameras[v].width
             if progress is not None:
                 progress(done / total, f"photo {v + 1}/{m}")
-        if edge is not None:
-            outlined[edge[edge >= 0]] = True
-        sums[:, texels] += band_sums
-        done += h * cameras[v].width
-        if progress is not None:
-            progress(done / total, f"photo {v + 1}/{m}")
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
     albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
