@@ -160,9 +160,10 @@ def test_the_shading_rows_are_the_transfer_rows_times_the_lighting(scene):
     assert cells.valid.sum() > 50 and np.abs(cells.occ).max() > 0.05  # the box occludes the ground around it
     sun = SunLight(SUN, scene)
     sigma = np.random.default_rng(1).uniform(-0.5, 1.0, (3, 10)).astype(np.float32)
-    for grid, light in ((None, None), (cells, None), (None, sun), (cells, sun)):
+    far = uv * 3 - 1  # two thirds of the points off the texture, some beyond the grid's border cells
+    for grid, light, at in ((None, None, uv), (cells, None, uv), (None, sun, uv), (cells, sun, uv), (cells, sun, far)):
         k = 9 + (light is not None)
-        expected = transfer_rows(n, uv, grid, light, p) @ sigma[:, :k].T
-        got = shading_rows(sigma[:, :k], n, uv, grid, light, p)
+        expected = transfer_rows(n, at, grid, light, p) @ sigma[:, :k].T
+        got = shading_rows(sigma[:, :k], n, at, grid, light, p)
         assert got.shape == (n.shape[0], 3) and got.dtype == np.float32
         np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())

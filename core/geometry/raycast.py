@@ -152,7 +152,6 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
             _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary)
             hit = best >= 0
             best[hit] = tris[best[hit]]
-    bary[best < 0] = 0.0
     return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
 
 

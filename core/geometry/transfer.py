@@ -35,7 +35,7 @@ from ..parallel import thread_map
 from ..solve.sh import sh_basis, sh_degree
 from .camera import Camera
 from .raycast import raycast
-from .texels import bilinear_texels, texel_index
+from .texels import bilinear_texels, texel_index, texel_of_uv
 
 __all__ = [
     "A_BAND",
@@ -230,15 +230,30 @@ class OcclusionGrid:
     def shading(self, uv, normal, sigma) -> np.ndarray:
         """``transfer(uv, normal) @ sigma.T``, ``(P, C)`` float32, for a lighting ``sigma`` ``(C, K)``.
 
-        The lighting goes into the cells first, so each point interpolates C numbers rather than K.
+        The lighting goes into the cells first, so each point interpolates C numbers rather than K: the
+        occlusion's shading times the cells' validity, and the validity, on a grid with a ring of empty cells
+        around it, looked up bilinearly; their ratio is :meth:`transfer`'s lookup over the valid cells only,
+        without its (P, 4) index and weight arrays.
         """
         k = self.occ.shape[1]
         sigma = np.asarray(sigma, np.float32)
-        idx, wts = bilinear_texels(uv, self.valid)
-        lit = (self.occ @ sigma.T)[idx]  # (P, 4, C)
+        c, n = sigma.shape[0], self.valid.shape[0]
+        m = n + 2
+        grid = np.zeros((m, m, c + 1), np.float32)
+        grid[1:-1, 1:-1, :c] = (self.occ @ sigma.T).reshape(n, n, c) * self.valid[..., None]
+        grid[1:-1, 1:-1, c] = self.valid
+        grid = grid.reshape(m * m, c + 1)
+        row, col = texel_of_uv(uv, n)
+        # Beyond the ring, a point takes the ring's (empty) cells.
+        x, y = np.clip(col + 1, 0, m - 1), np.clip(row + 1, 0, m - 1)
+        x0, y0 = np.minimum(x.astype(np.intp), m - 2), np.minimum(y.astype(np.intp), m - 2)
+        fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
+        at = y0 * m + x0
+        top = grid[at] * (1 - fx) + grid[at + 1] * fx
+        v = top * (1 - fy) + (grid[at + m] * (1 - fx) + grid[at + m + 1] * fx) * fy
         s = sh_basis(normal, order=round(k**0.5) - 1) @ (sigma * open_factor(k).astype(np.float32)).T
-        for j in range(4):
-            s += wts[:, j, None] * lit[:, j]
+        valid = v[:, c:] > 0
+        s += np.divide(v[:, :c], v[:, c:], out=np.zeros_like(s), where=valid)
         return s
 
 
