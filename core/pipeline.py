@@ -280,10 +280,10 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
     report(0.0, "lighting at the working resolution")
     normals, uvs, positions = [b.normal for b in bakes], [b.uv for b in bakes], [b.position for b in bakes]
     photos = [v.photo for v in inputs.views]
-    floor = shading_floors(sigma, normals, uvs, masks, photos, cells, sun, positions)
+    floor = shading_floors(sigma, normals, uvs, masks, photos, cells, sun, positions, opt.threads)
     weights = [b.view_weight for b in bakes]
     clipped = None if opt.mask_clipped else [v.clipped for v in inputs.views]
-    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions, clipped)
+    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions, clipped, opt.threads)
     views = inputs.views
 
     def load(i):

@@ -563,7 +563,9 @@ def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
         ratios = []
         for m, uv in zip(masks, uvs):
             t = texel_index(uv[m], size)
-            hit = np.unique(t[t >= 0]).size
+            reached = np.zeros(size * size, bool)  # counted by marking: np.unique would sort every pixel
+            reached[t[t >= 0]] = True
+            hit = np.count_nonzero(reached)
             if hit:
                 ratios.append(t.size / hit)
         if not ratios or np.median(ratios) >= pixels_per_texel:

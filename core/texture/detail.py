@@ -38,7 +38,7 @@ from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
 from ..geometry.transfer import shading_rows
-from ..parallel import resolve_threads, start, streamed
+from ..parallel import resolve_threads, start, streamed, thread_map
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
 from ..solve.lighting import dark_floor_bounds, raised
@@ -87,18 +87,22 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
     return s
 
 
-def shading_floors(sigma, normals, uvs, masks, photos, cells=None, sun=None, positions=None) -> np.ndarray:
+def shading_floors(
+    sigma, normals, uvs, masks, photos, cells=None, sun=None, positions=None, threads=None
+) -> np.ndarray:
     """Per channel, the albedo stage's floor bounds over every view's pixels: ``(C, 3)``.
 
     :func:`core.solve.lighting.dark_floor_bounds` of the working-resolution ``photos``; ``sun`` and the views'
-    world ``positions``: as :func:`shading`.
+    world ``positions``: as :func:`shading`. ``threads``: views shaded at once (None: every available core).
     """
-    shades = np.concatenate(
-        [
-            shading(n[m], uv[m], sigma[v], cells, sun=sun, position=None if sun is None else positions[v][m])
-            for v, (n, uv, m) in enumerate(zip(normals, uvs, masks))
-        ]
-    )
+
+    def view(v):
+        m = masks[v]
+        return shading(
+            normals[v][m], uvs[v][m], sigma[v], cells, sun=sun, position=None if sun is None else positions[v][m]
+        )
+
+    shades = np.concatenate(thread_map(view, range(len(masks)), threads))
     values = np.concatenate([p[m] for p, m in zip(photos, masks)])
     return np.array(
         [dark_floor_bounds(shades[:, c].astype(np.float64), values[:, c]) for c in range(shades.shape[1])],
@@ -114,7 +118,7 @@ def _log_ratio(q, b):
 
 
 def agreement(
-    photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None, clipped=None
+    photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None, clipped=None, threads=None
 ) -> list:
     """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
 
@@ -138,26 +142,34 @@ def agreement(
         As :func:`shading`.
     clipped : list of (H, W) bool arrays (or None per view), optional
         The working-resolution pixels that hold a clipped photo pixel.
+    threads : int or None
+        Views worked on at once (None: every available core).
 
     Returns
     -------
     list of (H, W) float32 arrays
         0 outside the masks.
     """
-    own = []
-    for v, (photo, m, uv, nrm) in enumerate(zip(photos, masks, uvs, normals)):
+
+    def own_albedo(v):
+        photo, m = photos[v], masks[v]
         q = np.zeros(photo.shape, np.float32)
         pos = None if sun is None else positions[v][m]
-        q[m] = photo[m] / shading(nrm[m], uv[m], sigma[v], cells, floor, sun, pos, photo[m])
-        own.append(q)
+        q[m] = photo[m] / shading(normals[v][m], uvs[v][m], sigma[v], cells, floor, sun, pos, photo[m])
+        return q
+
+    own = thread_map(own_albedo, range(len(masks)), threads)
     size = pixel_matched_size(masks, uvs, 2048)
     ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
     flat = ref.reshape(size * size, -1)
     everywhere = np.ones((size, size), bool)
-    errors = []
-    for q, m, uv in zip(own, masks, uvs):
+
+    def error(v):
+        m, uv = masks[v], uvs[v]
         idx, w = bilinear_texels(uv[m], everywhere)
-        errors.append(_log_ratio(q[m], interpolate(flat, idx, w)))
+        return _log_ratio(own[v][m], interpolate(flat, idx, w))
+
+    errors = thread_map(error, range(len(masks)), threads)
     pooled = np.concatenate(errors) if errors else np.zeros(0)
     scale = max(_SCALE_SIGMAS * 1.4826 * float(np.median(pooled)) if pooled.size else 0.0, _SCALE_MIN)
     agree = np.maximum((1.0 - np.minimum(pooled / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
