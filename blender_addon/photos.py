@@ -51,8 +51,12 @@ def working_space():
     return getattr(colorspace, "working_space", None) or "Linear Rec.709"
 
 
-def _byte_image_linear(img):
-    """An 8-bit image as (H, W, 3) float32 in the working space, row 0 at the top, converted by Blender."""
+def _byte_image_linear(img, opaque=False):
+    """An 8-bit image as (H, W, 3) float32 in the working space, row 0 at the top, converted by Blender.
+
+    ``opaque``: every alpha code is 255, so the conversion writes no alpha (the same colours, without a fourth
+    channel to write, read and drop).
+    """
     import tempfile
 
     import bpy
@@ -60,7 +64,8 @@ def _byte_image_linear(img):
     scene = bpy.data.scenes.new("delight colour conversion")
     try:
         settings = scene.render.image_settings
-        settings.file_format, settings.color_depth, settings.color_mode = "OPEN_EXR", "32", "RGBA"
+        settings.file_format, settings.color_depth = "OPEN_EXR", "32"
+        settings.color_mode = "RGB" if opaque else "RGBA"
         if getattr(settings, "has_linear_colorspace", False):
             settings.color_management = "OVERRIDE"
             settings.linear_colorspace_settings.name = working_space()
@@ -70,6 +75,8 @@ def _byte_image_linear(img):
             rgba = read_exr(path)[0]
     finally:
         bpy.data.scenes.remove(scene)
+    if opaque:
+        return rgba
     rgb = np.ascontiguousarray(rgba[..., :3], dtype=np.float32)
     alpha = rgba[..., 3:4]
     if not (alpha == 1.0).all():  # save_render premultiplies by alpha; a photo's colour is wanted straight
@@ -103,11 +110,11 @@ def image_pixels(img, camera_name, label=None, info=None):
         rgb = None
         if info is not None:
             info["float"] = bool(is_float)
-        if is_float or info is not None:
-            flat = np.empty(w * h * ch, dtype=np.float32)
-            img.pixels.foreach_get(flat)
+        flat = np.empty(w * h * ch, dtype=np.float32)
+        img.pixels.foreach_get(flat)
         if not is_float:
-            rgb = _byte_image_linear(img)
+            opaque = ch not in (2, 4) or bool(np.all(flat[ch - 1 :: ch] == 1.0))  # alpha, the last, all 255
+            rgb = _byte_image_linear(img, opaque)
             if info is not None:  # clipping is judged on the codes, whatever the colour space
                 codes = flat.reshape(h, w, ch)[::-1, :, : min(ch, 3)]
                 info["clipped"] = clipped_pixels(codes)

@@ -274,16 +274,18 @@ def _find_sun(problem, inputs, bakes, lighting, opt, progress):
 
 def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
     """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
-    from .texture.detail import agreement, detail_albedo, shading_floors
+    from .texture.detail import agreement, detail_albedo, shading_floors, view_shadings
 
     report = stage_progress(progress, "detail", DETAIL_STAGES)
     report(0.0, "lighting at the working resolution")
     normals, uvs, positions = [b.normal for b in bakes], [b.uv for b in bakes], [b.position for b in bakes]
     photos = [v.photo for v in inputs.views]
-    floor = shading_floors(sigma, normals, uvs, masks, photos, cells, sun, positions, opt.threads)
+    shades = view_shadings(sigma, normals, uvs, masks, cells, sun, positions, opt.threads)
+    floor = shading_floors(shades, photos, masks)
     weights = [b.view_weight for b in bakes]
     clipped = None if opt.mask_clipped else [v.clipped for v in inputs.views]
-    agree = agreement(photos, masks, uvs, normals, sigma, weights, floor, cells, sun, positions, clipped, opt.threads)
+    agree = agreement(photos, masks, uvs, shades, weights, floor, clipped, opt.threads)
+    del shades
     views = inputs.views
 
     def load(i):

@@ -19,7 +19,7 @@ from core.io.photos import downscale
 from core.pipeline import Options, compute
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
-from core.texture.detail import agreement, detail_albedo
+from core.texture.detail import agreement, detail_albedo, view_shadings
 
 N = 256  # texture
 FULL = (480, 360)  # photo size
@@ -224,15 +224,9 @@ def test_a_clipped_highlight_no_other_view_sees_takes_the_least_agreement(scene)
     masks = [bakes[0].mask] + [
         b.mask & (np.linalg.norm(b.position - centre.mean(axis=0), axis=2) > reach) for b in bakes[1:]
     ]
-    args = (
-        lit,
-        masks,
-        [b.uv for b in bakes],
-        [b.normal for b in bakes],
-        np.stack([sigma] * len(cams)),
-        [b.view_weight for b in bakes],
-        np.tile([0.05, 0.1, 1.0], (3, 1)),
-    )
+    uvs = [b.uv for b in bakes]
+    shades = view_shadings(np.stack([sigma] * len(cams)), [b.normal for b in bakes], uvs, masks)
+    args = (lit, masks, uvs, shades, [b.view_weight for b in bakes], np.tile([0.05, 0.1, 1.0], (3, 1)))
     blind = agreement(*args, threads=1)
     told = agreement(*args, clipped=clipped, threads=2)
     # The views are shaded and compared on threads of their own: the same weights on one thread.

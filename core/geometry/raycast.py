@@ -140,8 +140,10 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     bary = np.zeros((h * w, 3))
     if len(tri_pos):
         # One (3T, 3) product: a stack of T 3x3 products is several times slower.
-        vc = (tri_pos.reshape(-1, 3) @ camera.R.T + camera.t).reshape(-1, 3, 3)  # camera space
-        scale = float(np.abs(vc).max()) or 1.0
+        vc = tri_pos.reshape(-1, 3) @ camera.R.T  # camera space
+        vc += camera.t  # in place, as the extremes below: no second array over every corner
+        vc = vc.reshape(-1, 3, 3)
+        scale = max(float(vc.max()), -float(vc.min())) or 1.0
         z_near = 1e-9 * scale
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
         boxes = _pixel_boxes(camera, vc, z_near)
@@ -199,7 +201,9 @@ def _row_spans(camera, vc, z_near, boxes):
     prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris], nr[tris]))
     lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
     # A run of one column is left to the exact test: finding its span would cost as much.
-    front = (hi > lo) & np.all(vc[pt, :, 2] >= z_near, axis=1)
+    z = vc[:, :, 2]
+    in_front = np.minimum(np.minimum(z[:, 0], z[:, 1]), z[:, 2]) >= z_near  # per triangle, then per run
+    front = (hi > lo) & in_front[pt]
     if front.any():
         f = np.flatnonzero(front)
         x_lo, x_hi = _row_extent(camera, vc[pt[f]], prow[f].astype(np.float64))
@@ -242,7 +246,9 @@ def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
     pt, prow, plo, plen = spans
     # Per triangle: the edge-plane normals Vj x Vk (one per corner) and the volume.
     v0, v1, v2 = vc[:, 0], vc[:, 1], vc[:, 2]
-    n_corner = np.stack([np.cross(v1, v2), np.cross(v2, v0), np.cross(v0, v1)], axis=1)  # (T, 3, 3)
+    n_corner = np.empty_like(vc)  # (T, 3, 3)
+    for k, (a, b) in enumerate(((v1, v2), (v2, v0), (v0, v1))):
+        _cross_into(a, b, n_corner[:, k])
     vol = np.einsum("ij,ij->i", v0, n_corner[:, 0])
     cum = np.cumsum(plen)
     start = 0
@@ -272,6 +278,13 @@ def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
         bary[pix] = wts[sel] / s[sel, None]
 
 
+def _cross_into(a, b, out):
+    """``out[:] = np.cross(a, b)`` for (n, 3) arrays, the same products and differences without its temporaries."""
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.multiply(a[:, i], b[:, j], out=out[:, k])
+        out[:, k] -= a[:, j] * b[:, i]
+
+
 def _edge_test(camera, n_corner, cnt, r, c):
     """Signed-volume test of the rays through pixels ``(r, c)`` against their triangles.
 
@@ -291,7 +304,8 @@ def _edge_test(camera, n_corner, cnt, r, c):
         wts[:, k] = np.repeat(nk[:, 0], cnt) * dx
         wts[:, k] += np.repeat(nk[:, 1], cnt) * dy
         wts[:, k] += np.repeat(nk[:, 2], cnt)
-    s = wts.sum(axis=1)
+    s = wts[:, 0] + wts[:, 1]  # the order of wts.sum(axis=1), without its reduction over short rows
+    s += wts[:, 2]
     sign = np.sign(s)
     tol = _EDGE_EPS * np.abs(s)
     hit = s != 0

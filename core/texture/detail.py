@@ -45,7 +45,7 @@ from ..solve.lighting import dark_floor_bounds, raised
 from .fill import outline_pixels
 from .fuse import fuse_views
 
-__all__ = ["PRIOR_WEIGHT", "shading", "shading_floors", "agreement", "detail_albedo"]
+__all__ = ["PRIOR_WEIGHT", "shading", "view_shadings", "shading_floors", "agreement", "detail_albedo"]
 
 #: Weight of the working-resolution albedo in every texel's mean: a texel reached by full-resolution pixels of
 #: total weight w takes w / (w + PRIOR_WEIGHT) of their mean (a pixel seen head-on weighs 1).
@@ -82,18 +82,23 @@ def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=N
         return s
     if values is None:
         raise ValueError("shading: a floor follows the pixels' values; none were given")
-    for c in range(s.shape[1]):
-        s[:, c] = raised(s[:, c], values[:, c], floor[c])
-    return s
+    return _floored(s, values, floor)
 
 
-def shading_floors(
-    sigma, normals, uvs, masks, photos, cells=None, sun=None, positions=None, threads=None
-) -> np.ndarray:
-    """Per channel, the albedo stage's floor bounds over every view's pixels: ``(C, 3)``.
+def _floored(shade, values, floor) -> np.ndarray:
+    """``shade`` (P, C) raised in place, channel by channel, to the floor that ``values`` (P, C) give under the
+    bounds ``floor`` (C, 3) (:func:`core.solve.lighting.raised`); returns it."""
+    for c in range(shade.shape[1]):
+        shade[:, c] = raised(shade[:, c], values[:, c], floor[c])
+    return shade
 
-    :func:`core.solve.lighting.dark_floor_bounds` of the working-resolution ``photos``; ``sun`` and the views'
-    world ``positions``: as :func:`shading`. ``threads``: views shaded at once (None: every available core).
+
+def view_shadings(sigma, normals, uvs, masks, cells=None, sun=None, positions=None, threads=None) -> list:
+    """Per view, the shading of its masked pixels, ``(P_v, C)`` float32, not floored (:func:`shading`).
+
+    Both :func:`shading_floors` and :func:`agreement` take it, so the working-resolution views are shaded once.
+    ``sun`` and the views' world ``positions``: as :func:`shading`. ``threads``: views shaded at once (None:
+    every available core).
     """
 
     def view(v):
@@ -102,10 +107,19 @@ def shading_floors(
             normals[v][m], uvs[v][m], sigma[v], cells, sun=sun, position=None if sun is None else positions[v][m]
         )
 
-    shades = np.concatenate(thread_map(view, range(len(masks)), threads))
+    return thread_map(view, range(len(masks)), threads)
+
+
+def shading_floors(shades, photos, masks) -> np.ndarray:
+    """Per channel, the albedo stage's floor bounds over every view's pixels: ``(C, 3)``.
+
+    :func:`core.solve.lighting.dark_floor_bounds` of the working-resolution ``photos`` under ``shades``
+    (:func:`view_shadings`).
+    """
+    shade = np.concatenate(shades)
     values = np.concatenate([p[m] for p, m in zip(photos, masks)])
     return np.array(
-        [dark_floor_bounds(shades[:, c].astype(np.float64), values[:, c]) for c in range(shades.shape[1])],
+        [dark_floor_bounds(shade[:, c].astype(np.float64), values[:, c]) for c in range(shade.shape[1])],
         np.float64,
     )
 
@@ -117,9 +131,7 @@ def _log_ratio(q, b):
     return np.sqrt(np.mean(e * e, axis=1))
 
 
-def agreement(
-    photos, masks, uvs, normals, sigma, weights, floor, cells=None, sun=None, positions=None, clipped=None, threads=None
-) -> list:
+def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=None) -> list:
     """Per view, a weight in (0, 1] per working-resolution pixel: how well the view agrees with the others.
 
     Each pixel's own albedo (its value over its floored shading) is compared with the weighted median of all
@@ -132,14 +144,12 @@ def agreement(
 
     Parameters
     ----------
-    photos, masks, uvs, normals, weights : lists of (H, W, ...) arrays
+    photos, masks, uvs, weights : lists of (H, W, ...) arrays
         The working-resolution photos and their bakes (``weights`` the view weights).
-    sigma : (m, C, K) array
+    shades : list of (P_v, C) arrays
+        The views' shading, not floored (:func:`view_shadings`).
     floor : (C, 3) array
         :func:`shading_floors`.
-    cells : OcclusionGrid, optional
-    sun, positions : SunLight and the views' (H, W, 3) world points, optional
-        As :func:`shading`.
     clipped : list of (H, W) bool arrays (or None per view), optional
         The working-resolution pixels that hold a clipped photo pixel.
     threads : int or None
@@ -154,8 +164,7 @@ def agreement(
     def own_albedo(v):
         photo, m = photos[v], masks[v]
         q = np.zeros(photo.shape, np.float32)
-        pos = None if sun is None else positions[v][m]
-        q[m] = photo[m] / shading(normals[v][m], uvs[v][m], sigma[v], cells, floor, sun, pos, photo[m])
+        q[m] = photo[m] / _floored(shades[v].copy(), photo[m], floor)
         return q
 
     own = thread_map(own_albedo, range(len(masks)), threads)

@@ -24,6 +24,7 @@ from conftest import (
 from blender_addon.core.errors import DelightError
 from blender_addon.core.geometry.bake import bake_views
 from blender_addon.core.io.photos import downscale, srgb_to_linear
+from blender_addon.photos import _byte_image_linear
 from blender_addon.scene import gather
 from core.io.exr import write_exr
 
@@ -191,6 +192,19 @@ def test_a_photo_with_alpha_gives_its_straight_colour(tmp_path):
     expect = srgb_to_linear(codes[..., :3] / 255.0)
     expect[7, 9] = 0.0
     np.testing.assert_allclose(photo, expect, rtol=1e-3, atol=1e-5)
+
+
+def test_an_opaque_photo_is_converted_without_its_alpha_to_the_same_colours(tmp_path):
+    # Every alpha code 255: Blender's conversion writes RGB only. The colours must be those of the RGBA path.
+    codes = np.random.default_rng(3).integers(0, 256, (12, 16, 3)).astype(np.uint8)
+    img = bpy.data.images.load(write_png(str(tmp_path / "o.png"), codes))
+    try:
+        rgb = _byte_image_linear(img, opaque=True)
+        assert rgb.shape == (12, 16, 3) and rgb.dtype == np.float32
+        assert np.array_equal(rgb, _byte_image_linear(img, opaque=False))
+        np.testing.assert_allclose(rgb, srgb_to_linear(codes / 255.0), rtol=1e-4, atol=1e-5)
+    finally:
+        bpy.data.images.remove(img)
 
 
 def test_float_photo_has_no_clipped_pixels(tmp_path):
