@@ -138,14 +138,18 @@ def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, fa
         corner_normals, face_normals = mesh_normals(mesh)
     h, w = camera.height, camera.width
     rows = max(1, int(max_pixels) // w)
-    vc = np.asarray(mesh.tri_pos, np.float64) @ camera.R.T + camera.t
+    # As the ray caster transforms them: one (3T, 3) product, offset in place.
+    vc = np.asarray(mesh.tri_pos, np.float64).reshape(-1, 3) @ camera.R.T
+    vc += camera.t
+    vc = vc.reshape(-1, 3, 3)
     z = vc[..., 2]
-    front = np.all(z > 0, axis=1)
+    z_lo, z_hi = (f(f(z[:, 0], z[:, 1]), z[:, 2]) for f in (np.minimum, np.maximum))
+    front = z_lo > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         y = camera.K[1, 1] * vc[..., 1] / z + camera.K[1, 2]
-    y_lo = np.where(front, y.min(axis=1), -np.inf)
-    y_hi = np.where(front, y.max(axis=1), np.inf)
-    behind = np.all(z <= 0, axis=1)  # no ray reaches these
+    y_lo = np.where(front, np.minimum(np.minimum(y[:, 0], y[:, 1]), y[:, 2]), -np.inf)
+    y_hi = np.where(front, np.maximum(np.maximum(y[:, 0], y[:, 1]), y[:, 2]), np.inf)
+    behind = z_hi <= 0  # no ray reaches these
     del vc, z, y
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)

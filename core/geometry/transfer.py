@@ -249,8 +249,15 @@ class OcclusionGrid:
         x0, y0 = np.minimum(x.astype(np.intp), m - 2), np.minimum(y.astype(np.intp), m - 2)
         fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
         at = y0 * m + x0
-        top = grid[at] * (1 - fx) + grid[at + 1] * fx
-        v = top * (1 - fy) + (grid[at + m] * (1 - fx) + grid[at + m + 1] * fx) * fy
+        # (a (1 - fx) + b fx) (1 - fy) + (c (1 - fx) + d fx) fy, in place: the same products and sums.
+        gx, corner = 1 - fx, np.empty((at.size, c + 1), np.float32)
+        v, below = np.take(grid, at, axis=0), np.take(grid, at + m, axis=0)
+        v *= gx
+        v += np.multiply(np.take(grid, at + 1, axis=0, out=corner), fx, out=corner)
+        below *= gx
+        below += np.multiply(np.take(grid, at + m + 1, axis=0, out=corner), fx, out=corner)
+        v *= 1 - fy
+        v += np.multiply(below, fy, out=below)
         s = sh_basis(normal, order=round(k**0.5) - 1) @ (sigma * open_factor(k).astype(np.float32)).T
         valid = v[:, c:] > 0
         s += np.divide(v[:, :c], v[:, c:], out=np.zeros_like(s), where=valid)

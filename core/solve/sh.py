@@ -30,31 +30,45 @@ def sh_basis(normals: np.ndarray, dtype=np.float32, order: int = 2) -> np.ndarra
         raise ValueError(f"sh_basis: order must be 2, 3 or 4, got {order}")
     n = np.asarray(normals, dtype=np.float64)
     x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    cols = [x, y, z, np.ones_like(x), x * y, x * z, y * z, x * x - y * y, 3 * z * z - 1]
+    zz = z * z
+    cols = [
+        lambda: x,
+        lambda: y,
+        lambda: z,
+        lambda: 1.0,
+        lambda: x * y,
+        lambda: x * z,
+        lambda: y * z,
+        lambda: x * x - y * y,
+        lambda: 3 * z * z - 1,
+    ]
     if order >= 3:
-        zz = z * z
         cols += [
-            y * (3 * x * x - y * y),
-            x * y * z,
-            y * (5 * zz - 1),
-            z * (5 * zz - 3),
-            x * (5 * zz - 1),
-            z * (x * x - y * y),
-            x * (x * x - 3 * y * y),
+            lambda: y * (3 * x * x - y * y),
+            lambda: x * y * z,
+            lambda: y * (5 * zz - 1),
+            lambda: z * (5 * zz - 3),
+            lambda: x * (5 * zz - 1),
+            lambda: z * (x * x - y * y),
+            lambda: x * (x * x - 3 * y * y),
         ]
     if order >= 4:
         cols += [
-            x * y * (x * x - y * y),
-            y * z * (3 * x * x - y * y),
-            x * y * (7 * zz - 1),
-            y * z * (7 * zz - 3),
-            35 * zz * zz - 30 * zz + 3,
-            x * z * (7 * zz - 3),
-            (x * x - y * y) * (7 * zz - 1),
-            x * z * (x * x - 3 * y * y),
-            x * x * (x * x - 3 * y * y) - y * y * (3 * x * x - y * y),
+            lambda: x * y * (x * x - y * y),
+            lambda: y * z * (3 * x * x - y * y),
+            lambda: x * y * (7 * zz - 1),
+            lambda: y * z * (7 * zz - 3),
+            lambda: 35 * zz * zz - 30 * zz + 3,
+            lambda: x * z * (7 * zz - 3),
+            lambda: (x * x - y * y) * (7 * zz - 1),
+            lambda: x * z * (x * x - 3 * y * y),
+            lambda: x * x * (x * x - 3 * y * y) - y * y * (3 * x * x - y * y),
         ]
-    return np.stack(cols, axis=-1).astype(dtype, copy=False)
+    # Each column computed in float64 and written into the result, one at a time: no (..., K) float64 stack.
+    out = np.empty((*n.shape[:-1], len(cols)), dtype)
+    for k, col in enumerate(cols):
+        out[..., k] = col()
+    return out
 
 
 def sh_degree(k: int) -> np.ndarray:
