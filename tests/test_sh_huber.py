@@ -1,7 +1,8 @@
 import numpy as np
 
+from core.geometry.transfer import sphere_directions
 from core.solve.huber import huber, majorant, mm_weight
-from core.solve.sh import sh_basis, view_normal_equations, weighted_gram
+from core.solve.sh import sh_basis, sh_degree, view_normal_equations, weighted_gram
 
 
 def test_sh_basis_matches_closed_form():
@@ -12,6 +13,22 @@ def test_sh_basis_matches_closed_form():
     for (n1, n2, n3), row in zip(n, nu):
         expected = [n1, n2, n3, 1, n1 * n2, n1 * n3, n2 * n3, n1**2 - n2**2, 3 * n3**2 - 1]
         np.testing.assert_allclose(row, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_sh_basis_of_orders_3_and_4_are_spherical_harmonics_of_their_degrees():
+    # Real SH are orthogonal over the sphere and of the degree sh_degree gives: a wrong term in any column
+    # shows as an off-diagonal entry of the Gram matrix (quadrature on a Fibonacci lattice).
+    d = sphere_directions(200_000)
+    for order in (2, 3, 4):
+        nu = sh_basis(d, np.float64, order)
+        k = (order + 1) ** 2
+        assert nu.shape == (len(d), k) and sh_basis(d[:5], np.float32, order).dtype == np.float32
+        gram = nu.T @ nu / len(d)
+        scale = np.sqrt(np.outer(np.diag(gram), np.diag(gram)))
+        assert np.all(np.abs(gram - np.diag(np.diag(gram))) < 1e-3 * scale), order
+        # Degree l: nu(-n) = (-1)^l nu(n).
+        parity = (-1.0) ** sh_degree(k)
+        np.testing.assert_allclose(sh_basis(-d[:100], np.float64, order), nu[:100] * parity, atol=1e-12)
 
 
 def test_weighted_gram_sums_the_weighted_outer_products():
