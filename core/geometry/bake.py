@@ -20,7 +20,7 @@ from ..parallel import thread_map
 from ..progress import check_cancel
 from ..scene import MeshArrays
 from .camera import Camera
-from .raycast import raycast
+from .raycast import nan_min_max, raycast
 
 __all__ = ["ViewBake", "PixelBake", "bake_pixels", "bake_view", "bake_views", "bake_rows", "row_bands", "mesh_normals"]
 
@@ -138,17 +138,14 @@ def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, fa
         corner_normals, face_normals = mesh_normals(mesh)
     h, w = camera.height, camera.width
     rows = max(1, int(max_pixels) // w)
-    # As the ray caster transforms them: one (3T, 3) product, offset in place.
-    vc = np.asarray(mesh.tri_pos, np.float64).reshape(-1, 3) @ camera.R.T
-    vc += camera.t
-    vc = vc.reshape(-1, 3, 3)
+    vc = camera.to_camera(np.asarray(mesh.tri_pos, np.float64))  # as the ray caster transforms them
     z = vc[..., 2]
-    z_lo, z_hi = (f(f(z[:, 0], z[:, 1]), z[:, 2]) for f in (np.minimum, np.maximum))
+    z_lo, z_hi = nan_min_max([z[:, 0], z[:, 1], z[:, 2]])
     front = z_lo > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         y = camera.K[1, 1] * vc[..., 1] / z + camera.K[1, 2]
-    y_lo = np.where(front, np.minimum(np.minimum(y[:, 0], y[:, 1]), y[:, 2]), -np.inf)
-    y_hi = np.where(front, np.maximum(np.maximum(y[:, 0], y[:, 1]), y[:, 2]), np.inf)
+    y_lo, y_hi = nan_min_max([y[:, 0], y[:, 1], y[:, 2]])
+    y_lo, y_hi = np.where(front, y_lo, -np.inf), np.where(front, y_hi, np.inf)
     behind = z_hi <= 0  # no ray reaches these
     del vc, z, y
     for r0 in range(0, h, rows):

@@ -53,12 +53,23 @@ class Camera:
         """Camera centre in world coordinates."""
         return -self.R.T @ self.t
 
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """World points ``(..., 3)`` in camera space, float64, the same shape.
+
+        One ``(N, 3)`` product (a stack of small products is several times slower), offset in place: no second
+        array over every point.
+        """
+        points = np.asarray(points)
+        pc = points.reshape(-1, 3) @ self.R.T
+        pc += self.t
+        return pc.reshape(points.shape)
+
     def project(self, points: np.ndarray):
         """Project world points ``(..., 3)``; return pixel ``(..., 2)`` and depth ``(...)``.
 
         Depth is the camera-space z (positive in front of the camera).
         """
-        pc = points @ self.R.T + self.t
+        pc = self.to_camera(points)
         z = pc[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             x = self.K[0, 0] * pc[..., 0] / z + self.K[0, 1] * pc[..., 1] / z + self.K[0, 2]

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RayHits", "raycast"]
+__all__ = ["RayHits", "raycast", "nan_min_max"]
 
 # Inclusive edge test with a tiny tolerance so that a pixel centre exactly on a
 # shared edge is not lost to rounding in both triangles.
@@ -82,7 +82,7 @@ def _bounds(vc, z_near):
     front = z >= z_near
     if front.all():  # the common case, without the NaNs
         px, py = vc[:, :, 0] / z, vc[:, :, 1] / z
-        (xmin, xmax), (ymin, ymax) = (_nan_min_max([p[:, 0], p[:, 1], p[:, 2]]) for p in (px, py))
+        (xmin, xmax), (ymin, ymax) = (nan_min_max([p[:, 0], p[:, 1], p[:, 2]]) for p in (px, py))
         return xmin, xmax, ymin, ymax, np.ones(len(vc), bool)
     keep = front.any(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -100,11 +100,11 @@ def _bounds(vc, z_near):
             p = a + s[:, None] * (b - a)
             xs.append(np.where(cut, p[:, 0] / z_near, np.nan))
             ys.append(np.where(cut, p[:, 1] / z_near, np.nan))
-    (xmin, xmax), (ymin, ymax) = _nan_min_max(xs), _nan_min_max(ys)
+    (xmin, xmax), (ymin, ymax) = nan_min_max(xs), nan_min_max(ys)
     return (*(np.where(keep, b, 0.0) for b in (xmin, xmax, ymin, ymax)), keep)
 
 
-def _nan_min_max(columns):
+def nan_min_max(columns):
     """Elementwise min and max over equal-shaped arrays, ignoring NaN (NaN where all are).
 
     Column by column: ``np.nanmin(..., axis=1)`` over a few columns reduces each short row on its own, several
@@ -139,11 +139,8 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     best = np.full(h * w, -1, dtype=np.intp)
     bary = np.zeros((h * w, 3))
     if len(tri_pos):
-        # One (3T, 3) product: a stack of T 3x3 products is several times slower.
-        vc = tri_pos.reshape(-1, 3) @ camera.R.T  # camera space
-        vc += camera.t  # in place, as the extremes below: no second array over every corner
-        vc = vc.reshape(-1, 3, 3)
-        scale = max(float(vc.max()), -float(vc.min())) or 1.0
+        vc = camera.to_camera(tri_pos)
+        scale = max(float(vc.max()), -float(vc.min())) or 1.0  # no abs copy over every corner
         z_near = 1e-9 * scale
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
         boxes = _pixel_boxes(camera, vc, z_near)
@@ -235,7 +232,7 @@ def _row_extent(camera, v, y):
             # A horizontal edge on the row contributes both ends.
             flat = on & (dy_e == 0)
             xs.append(np.where(flat, px[:, j], np.nan))
-    return _nan_min_max(xs)
+    return nan_min_max(xs)
 
 
 def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
