@@ -48,6 +48,7 @@ class Prepared:
     peaks: dict = field(default_factory=dict)  # peak memory (MB) at the end of each stage
     photos: PhotoCache | None = None  # the full-resolution photos' temporary copies, for the detail stage
     alignment: object = None  # core.geometry.align.Alignment with the option align_photos, else None
+    stages: dict | None = None  # the progress bar's spans (core.pipeline.schedule), set once the photos are read
 
     def release(self):
         """Remove the full-resolution photos' temporary copies (once the detail stage is done, or on failure)."""
@@ -179,8 +180,8 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         keep_full=photos.put if photos is not None else None,
         progress=stage_progress(progress, "gather"),
     )
-    # The bar's shares, now that the photos tell whether the detail stage will run.
-    stages = schedule(uses_detail(options) and any(v.full is not None for v in inputs.views))
+    # The bar's spans, now that the photos tell how long the stages will take.
+    stages = schedule(options, inputs)
     # Fail before the long part if the outputs or the material are in the way.
     _material.check_editable(bpy.data.objects[inputs.object_name])
     # The outputs, uncompressed: an RGBA float32 albedo and one per view.
@@ -241,6 +242,7 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         peaks=peaks,
         photos=photos,
         alignment=alignment,
+        stages=stages,
     )
 
 
@@ -251,7 +253,14 @@ def compute(prepared: Prepared, progress=None, cancel=None) -> Computed:
     """
     try:
         return _compute(
-            prepared.options, prepared.inputs, prepared.bakes, prepared.times, progress, cancel, peaks=prepared.peaks
+            prepared.options,
+            prepared.inputs,
+            prepared.bakes,
+            prepared.times,
+            progress,
+            cancel,
+            peaks=prepared.peaks,
+            stages=prepared.stages,
         )
     finally:
         prepared.release()
@@ -357,7 +366,7 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
 
     opt, inputs = prepared.options, prepared.inputs
     times = dict(prepared.times)
-    stage = stage_progress(progress, "write")  # the same share in both schedules
+    stage = stage_progress(progress, "write", prepared.stages)
     t = time.perf_counter()
     obj = bpy.data.objects.get(inputs.object_name)
     if obj is None:

@@ -15,12 +15,12 @@ from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
-from .progress import DETAIL_STAGES, STAGES, check_cancel, stage_progress
+from .progress import check_cancel, spans, stage_progress
 from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams
 from .solve.stages import solve
-from .texture import fill_unseen, fuse_views, outline_only, sample_texture
+from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
 # here too.
@@ -33,6 +33,8 @@ __all__ = [
     "peak_mb",
     "uses_detail",
     "schedule",
+    "expected_seconds",
+    "runs_detail",
     "LIGHTING_PIXELS",
     "stage_progress",
     "check_cancel",
@@ -80,9 +82,48 @@ def uses_detail(options: Options) -> bool:
     return bool(options.detail) and options.method != "project"
 
 
-def schedule(detail: bool) -> dict:
-    """The progress bar's share of each stage (:mod:`core.progress`), for a run with or without the detail stage."""
-    return DETAIL_STAGES if detail else STAGES
+def runs_detail(options: Options, inputs) -> bool:
+    """Whether a run with ``options`` on ``inputs`` has the detail stage: some photo is larger than its working copy."""
+    return uses_detail(options) and any(v.full is not None for v in inputs.views)
+
+
+def expected_seconds(options: Options, inputs) -> dict:
+    """Roughly how long each stage after the gather takes, from the run's sizes, in run order.
+
+    Only the ratios count (:func:`core.progress.spans`); the seconds are of the machine they were fitted on
+    (Intel Xeon, 2 cores: 13 photos of 0.5, 1 and 12 MP, 50 of 24 MP; docs/measurements.md). The bake and
+    the photos' alignment go with the pixels and the triangles; the lighting-only solve before the detail
+    stage with the triangles (the occlusion, the sun's shadows), the full solve with the texels it solves;
+    the fuse and the writing with the texels; the detail stage with the full-resolution pixels.
+    """
+    mp = 1e-6
+    views = inputs.views
+    working = mp * sum(v.photo.shape[0] * v.photo.shape[1] for v in views)
+    full = mp * sum(v.full.camera.width * v.full.camera.height for v in views if v.full is not None)
+    triangles = mp * len(inputs.mesh.tri_pos)
+    texels = mp * int(options.texture_size) ** 2
+    detail = runs_detail(options, inputs)
+    # The texels solved: the lighting stage's alone before the detail stage; else no more than the pixels
+    # resolve (SolverParams.max_texels_per_pixel).
+    solved = min(texels, 0.016 if detail else 1.3 * working)
+    if options.method == "project":
+        solve = 0.1 * working
+    elif detail:
+        solve = 60.0 + 36.0 * triangles
+    else:
+        solve = 6.0 * solved + 20.0 * triangles + 1.0
+    fuse = 0.6 * solved + 0.08 * texels
+    seconds = {"bake": 0.3 * working + 20.0 * triangles, "solve": solve, "fuse": fuse}
+    if detail:
+        seconds["detail"] = 0.31 * full
+    seconds["write"] = 0.15 * texels + 0.02 * working
+    return seconds
+
+
+def schedule(options: Options, inputs) -> dict:
+    """The progress bar's span of each stage (:mod:`core.progress`) for a run with ``options`` on ``inputs``: in
+    proportion to :func:`expected_seconds`, so that the time left is read from the bar's progress."""
+    return spans(expected_seconds(options, inputs))
 
 
 #: With the detail stage, the most pixels on the mesh (all photos together) the lighting stage is solved on: a
@@ -157,19 +198,18 @@ def _with_gains(inputs, gains):
 
 
 def _lighting_stage(problem, params, progress, cancel):
-    """The two-stage solve's lighting stage alone, its albedo brought to the full texture.
+    """The two-stage solve's lighting stage alone; its albedo as solved, in ``result.solved`` (the fuse scales
+    it up to the full texture, :func:`core.texture.fill.fill_scaled_up`), ``result.texture`` None.
 
     With the detail stage the albedo is made again from the full photos, so the working resolution's albedo
     stage would only give it a prior and a fallback: the lighting stage's albedo, scaled up, serves as well
     (measured on the fixtures) and saves the albedo stage's time and memory. The problem's masks are thinned
     to :data:`LIGHTING_PIXELS` (:func:`_thinned`) by the caller.
     """
-    from .solve.pyramid import upsample_bilinear
     from .solve.stages import lighting_stage
 
-    light, result = lighting_stage(problem, params, progress, cancel)
-    if light is not problem:
-        result.texture, result.seen = upsample_bilinear(result.texture, result.seen, problem.texture)
+    _, result = lighting_stage(problem, params, progress, cancel)
+    result.solved, result.texture, result.seen = (result.texture, result.seen), None, None
     result.info["lighting_only"] = True
     return result
 
@@ -272,11 +312,11 @@ def _find_sun(problem, inputs, bakes, lighting, opt, progress):
     return sun, info
 
 
-def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel):
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel, stages):
     """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
     from .texture.detail import agreement, detail_albedo, shading_floors, view_shadings
 
-    report = stage_progress(progress, "detail", DETAIL_STAGES)
+    report = stage_progress(progress, "detail", stages)
     report(0.0, "lighting at the working resolution")
     normals, uvs, positions = [b.normal for b in bakes], [b.uv for b in bakes], [b.position for b in bakes]
     photos = [v.photo for v in inputs.views]
@@ -321,11 +361,13 @@ def compute(
     progress=None,
     cancel=None,
     peaks: dict | None = None,
+    stages: dict | None = None,
 ) -> Computed:
     """Build the problem, solve and fuse (pure arrays; safe in a worker thread).
 
     ``times`` (if given) receives the seconds spent in "solve", "fuse" and "detail"; ``peaks`` the process's
-    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve). The detail stage
+    peak memory (:func:`peak_mb`) at the end of each, and of "occlusion" (part of the solve). ``stages`` is the
+    progress bar's spans (:func:`schedule`, by default of ``options`` and ``inputs``). The detail stage
     (:mod:`core.texture.detail`) runs when :func:`uses_detail` and some view has its photo at full resolution
     (``ViewInput.full``); it replaces the albedo, and the texture method's per-view maps are sampled from it.
     With it, a two-stage texture solve stops after its lighting stage (:func:`_lighting_stage`).
@@ -353,11 +395,11 @@ def compute(
         solve_masks = [_unclipped(m, v.clipped) for m, v in zip(masks, inputs.views)]
     uvs = [b.uv for b in bakes]
     weights = [b.view_weight for b in bakes]
-    detail = uses_detail(opt) and any(v.full is not None for v in inputs.views)
+    detail = runs_detail(opt, inputs)
     # With the detail stage a two-stage texture solve stops after its lighting stage, on fewer pixels.
     lighting_only = detail and opt.method == "texture" and opt.albedo_lam is not None
     light_masks = _thinned(solve_masks, LIGHTING_PIXELS) if lighting_only else solve_masks
-    stages = schedule(detail)
+    stages = schedule(opt, inputs) if stages is None else stages
     solve_progress = stage_progress(progress, "solve", stages)
 
     t = time.perf_counter()
@@ -428,12 +470,15 @@ def compute(
     fuse_progress(0.0, "texture")
     outline = None
     if opt.method == "texture":
-        seen = np.asarray(result.seen, dtype=bool)
-        known = seen
+        # Filled at the size it was solved at, where its texels hold the data; then scaled up.
+        texture, solved_seen = result.solved if result.solved is not None else (result.texture, result.seen)
+        solved_seen = np.asarray(solved_seen, dtype=bool)
+        known = solved_seen
         if opt.fill_outlines:
-            outline = outline_only(uvs, masks, weights, seen, used=solve_masks)
-            known = seen & ~outline
-        albedo = fill_unseen(result.texture, known if known.any() else seen, layout.inside, 4, opt.threads)
+            outline = outline_only(uvs, masks, weights, solved_seen, used=solve_masks)
+            known = solved_seen & ~outline
+        albedo = fill_scaled_up(texture, known if known.any() else solved_seen, layout.inside, 4, opt.threads)
+        seen = None if result.seen is None else np.asarray(result.seen, dtype=bool)  # None: the detail stage's
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images
@@ -450,7 +495,7 @@ def compute(
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(
-            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel
+            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel, stages
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)

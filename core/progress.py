@@ -2,9 +2,10 @@
 
 A progress callback is ``progress(fraction, message="")`` with ``fraction`` in [0, 1]; a cancel callback is
 ``cancel() -> bool``. Each stage reports its own 0..1 through :func:`stage_progress`, which maps it into the
-stage's share of the whole run (:data:`STAGES`); the stages call :func:`check_cancel` between steps. The command
-lines print progress with :class:`ProgressPrinter`; the GUI operator draws a bar from a :class:`ProgressState`.
-Both add the time left that :class:`TimeLeft` estimates.
+stage's share of the whole run: :data:`STAGES` by default, or the shares a run expects (:func:`spans`, from
+:func:`core.pipeline.schedule` once the photos are read); the stages call :func:`check_cancel` between steps.
+The command lines print progress with :class:`ProgressPrinter`; the GUI operator draws a bar from a
+:class:`ProgressState`. Both add the time left that :class:`TimeLeft` estimates.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from .errors import Cancelled
 __all__ = [
     "sub_progress",
     "STAGES",
-    "DETAIL_STAGES",
+    "STAGE_NAMES",
+    "spans",
     "stage_progress",
     "stage_of",
     "check_cancel",
@@ -29,18 +31,28 @@ __all__ = [
     "ProgressPrinter",
 ]
 
-#: Share of the progress bar of each stage of a run, (start, end).
+#: Share of the progress bar of each stage of a run, (start, end), before the run's own (:func:`spans`).
 STAGES = {"gather": (0.0, 0.05), "bake": (0.05, 0.3), "solve": (0.3, 0.9), "fuse": (0.9, 0.95), "write": (0.95, 1.0)}
-#: The shares when the albedo is made again from the full-resolution photos (:mod:`core.texture.detail`) after
-#: a solve of the lighting alone. Reading the scene has the same share in both, as it comes before the choice.
-DETAIL_STAGES = {
-    "gather": (0.0, 0.05),
-    "bake": (0.05, 0.1),
-    "solve": (0.1, 0.6),
-    "fuse": (0.6, 0.62),
-    "detail": (0.62, 0.95),
-    "write": (0.95, 1.0),
-}
+#: Every stage a run may have, in order: with ``detail`` when the albedo is made again from the full-resolution
+#: photos (:mod:`core.texture.detail`) after a solve of the lighting alone.
+STAGE_NAMES = ("gather", "bake", "solve", "fuse", "detail", "write")
+
+
+def spans(seconds: dict) -> dict:
+    """The bar's ``(start, end)`` of each stage, for stages that are expected to take ``seconds`` each, in order.
+
+    The gather keeps its share of :data:`STAGES` (the bar shows it before the photos, and so the run's size,
+    are known); the other stages share the rest of the bar in proportion to their seconds, so that a stage's
+    rate of progress predicts the time left (:class:`TimeLeft`).
+    """
+    start = STAGES["gather"][1]
+    total = sum(max(float(s), 0.0) for s in seconds.values())
+    out, at = {"gather": STAGES["gather"]}, start
+    for i, (stage, s) in enumerate(seconds.items()):
+        end = 1.0 if i == len(seconds) - 1 else at + (1.0 - start) * max(float(s), 0.0) / total
+        out[stage] = (at, end)
+        at = end
+    return out
 
 
 def sub_progress(progress, lo: float, hi: float, label: str = ""):
@@ -69,7 +81,7 @@ def stage_progress(progress, stage: str, stages: dict | None = None):
 def stage_of(message: str) -> str | None:
     """The stage a :func:`stage_progress` message names (``"solve: iteration 3"`` -> ``"solve"``), or None."""
     head = message.split(":", 1)[0].strip() if message else ""
-    return head if head in STAGES or head in DETAIL_STAGES else None
+    return head if head in STAGE_NAMES else None
 
 
 def check_cancel(cancel) -> None:
@@ -83,9 +95,10 @@ class TimeLeft:
 
     Feed it ``(fraction, time)`` pairs with :meth:`update`. The rate is measured from the first pair (so time
     spent before the estimate started, such as the GUI's bake, does not count), or from the first pair of the
-    current stage when the pairs name their stage (the stages' shares of the bar are fixed, their durations
-    are not: a run's last long stage, such as the detail stage after the solve, then predicts its own end),
-    and the estimate is smoothed over the updates, so that one quick or slow step does not make it jump.
+    current stage when the pairs name their stage (the stages' shares of the bar are their expected durations,
+    :func:`spans`; the machine's speed is measured anew in each stage), and the estimate is smoothed over the
+    updates, so that one quick or slow step does not make it jump. There is no estimate during the gather: its
+    share is drawn before the photos are read, so it says nothing of how long the rest takes.
 
     Parameters
     ----------
@@ -118,7 +131,7 @@ class TimeLeft:
         f0, t0 = self._start
         if fraction >= 1.0:
             self._estimate, self._time = 0.0, now
-        elif now - t0 >= self.warmup and fraction - f0 >= self.min_progress and fraction > f0:
+        elif stage != "gather" and now - t0 >= self.warmup and fraction - f0 >= self.min_progress and fraction > f0:
             raw = (now - t0) * (1.0 - fraction) / (fraction - f0)
             if self._estimate is None:
                 self._estimate = raw

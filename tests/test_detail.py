@@ -16,7 +16,8 @@ from core.geometry.bilinear import interpolate
 from core.geometry.camera import Camera
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
-from core.pipeline import Options, compute
+from core.pipeline import Options, compute, schedule
+from core.progress import stage_of
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
 from core.texture.detail import agreement, detail_albedo, view_shadings
@@ -159,13 +160,14 @@ def test_bands_of_rows_bake_as_the_whole_view(scene):
 def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     albedo = scene[1]
     runs = {}
+    bar = []
     for detail in (False, True):
         loads = Loads(scene[4])
         opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
         times = {}
-        out = compute(
-            opt, inputs_of(scene, loads), [bake_view(v.camera, scene[0]) for v in inputs_of(scene, loads).views], times
-        )
+        inputs = inputs_of(scene, loads)
+        bakes = [bake_view(v.camera, scene[0]) for v in inputs.views]
+        out = compute(opt, inputs, bakes, times, progress=(lambda f, m="": bar.append((f, m))) if detail else None)
         runs[detail] = (out, loads, times)
     (coarse, _, t0), (fine, loads, t1) = runs[False], runs[True]
     seen = coarse.seen & fine.seen
@@ -180,6 +182,13 @@ def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     assert loads.calls == len(scene[3]) and loads.max_alive <= 1
     assert "detail" in t1 and "detail" not in t0
     assert fine.info["detail"] and not coarse.info["detail"]
+    # The bar moves forward only, each stage within its span of the run's schedule.
+    stages = schedule(opt, inputs)
+    assert [f for f, _ in bar] == sorted(f for f, _ in bar)
+    assert {stage_of(m) for _, m in bar} == {"solve", "fuse", "detail"}
+    for f, m in bar:
+        lo, hi = stages[stage_of(m)]
+        assert lo - 1e-9 <= f <= hi + 1e-9, (f, m)
 
 
 def test_detail_takes_one_photo_at_a_time_and_drops_a_highlight(scene):
@@ -348,15 +357,35 @@ def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
         )
 
 
-def test_the_detail_schedule_covers_the_bar_in_order_and_reads_the_scene_as_the_other():
-    from core.progress import DETAIL_STAGES, STAGES
+def test_the_schedule_gives_each_stage_its_share_of_the_expected_time(scene):
+    from core.pipeline import expected_seconds, schedule
+    from core.progress import STAGES
 
-    spans = list(DETAIL_STAGES.values())
-    assert spans[0][0] == 0.0 and spans[-1][1] == 1.0
-    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
-    assert list(DETAIL_STAGES) == ["gather", "bake", "solve", "fuse", "detail", "write"]
-    # The photos are read before the run knows which schedule it has; the files are written in the same share.
-    assert DETAIL_STAGES["gather"] == STAGES["gather"] and DETAIL_STAGES["write"] == STAGES["write"]
+    inputs = inputs_of(scene, Loads(scene[4]))
+    opt = Options(texture_size=N, working_res_mp=WORKING_MP)
+    stages = schedule(opt, inputs)
+    spans = list(stages.values())
+    assert list(stages) == ["gather", "bake", "solve", "fuse", "detail", "write"]
+    # The photos are read before the run knows its schedule: the gather keeps the default share.
+    assert spans[0] == STAGES["gather"] and spans[-1][1] == 1.0
+    assert all(a[1] == b[0] and a[0] < a[1] for a, b in zip(spans, spans[1:]))
+    seconds = expected_seconds(opt, inputs)
+    for stage, s in seconds.items():
+        assert stages[stage][1] - stages[stage][0] == pytest.approx(0.95 * s / sum(seconds.values()))
+
+    def share(stages, stage):
+        return stages[stage][1] - stages[stage][0]
+
+    # Photos with four times the pixels: the detail stage takes more of the bar; photos that fit the working
+    # resolution have no detail stage; a texture four times as large takes more for its fusing and writing.
+    big = [
+        replace(v, full=replace(v.full, camera=resized(v.full.camera, 2 * FULL[0], 2 * FULL[1]))) for v in inputs.views
+    ]
+    assert share(schedule(opt, replace(inputs, views=big)), "detail") > 2 * share(stages, "detail")
+    small = replace(inputs, views=[replace(v, full=None) for v in inputs.views])
+    assert "detail" not in schedule(opt, small)
+    larger = schedule(replace(opt, texture_size=2 * N), inputs)
+    assert share(larger, "fuse") > share(stages, "fuse") and share(larger, "write") > share(stages, "write")
 
 
 def test_the_lighting_stage_takes_every_kth_pixel_beyond_its_budget():

@@ -222,10 +222,13 @@ def test_fill_unseen_2d_and_bad_input():
     tex, seen, inside, _ = ramp_case(16)
     out = fill_unseen(tex[..., 0], seen, inside)
     assert out.shape == (16, 16)
-    bad = tex.copy()
-    bad[seen.nonzero()[0][0], seen.nonzero()[1][0], 1] = np.nan
-    with pytest.raises(ValueError, match="NaN"):
-        fill_unseen(bad, seen, inside)
+    rows, cols = seen.nonzero()
+    for value in (np.nan, np.inf):
+        bad = tex.copy()
+        bad[rows[2], cols[2], 1] = value
+        bad[rows[4], cols[4], 0] = value
+        with pytest.raises(ValueError, match=rf"\(row {rows[2]}, col {cols[2]}\) is NaN or infinite"):
+            fill_unseen(bad, seen, inside)
     with pytest.raises(ValueError, match="inside"):
         fill_unseen(tex, seen, inside[:8])
     with pytest.raises(ValueError, match="no texel is seen"):
@@ -295,3 +298,36 @@ def test_outline_only_finds_the_texels_seen_only_at_the_outline():
     weight[4, 3] = 0.01
     assert outline_only([uv], [mask], [weight], mask, evidence=0.02)[4, 3]
     assert not outline_only([uv], [mask], [weight], mask, evidence=0.005)[4, 3]
+
+
+def test_a_texture_solved_smaller_is_filled_at_its_size_then_scaled_up():
+    from core.geometry.texels import parent_texels
+    from core.solve.pyramid import upsample_onto
+    from core.texture.fill import fill_scaled_up
+
+    # A ramp solved at 48 (a round hole unseen), for a texture of 4 x 48: the hole takes the ramp at 48 and
+    # the texture is its bilinear scaling; a tiny island no solved texel saw takes the mean of the seen ones.
+    tex, seen, inside, hole = ramp_case(48)
+    big = 4 * 48
+    parent = parent_texels(big, 48)
+    fine_inside = inside[parent][:, parent]
+    island = np.zeros((big, big), bool)
+    island[1, 1] = True  # no texel at 48 holds it
+    out = fill_scaled_up(tex, seen, fine_inside | island, 4)
+    assert out.shape == (big, big, 2) and out.dtype == np.float32
+    filled = fill_unseen(tex, seen, inside, 3)
+    at_inside, _ = upsample_onto(filled, np.ones((48, 48), bool), fine_inside)
+    np.testing.assert_allclose(out[fine_inside], at_inside[fine_inside], atol=1e-6)
+    # The ramp is linear, and so is its bilinear scaling: the hole's texels hold it at 192 too.
+    y, x = (np.mgrid[0:big, 0:big] + 0.5) / 4 - 0.5  # the texels' centres in the solved texels' rows, columns
+    ramp = np.stack([0.02 * y + 0.01 * x + 0.1, 1 - 0.015 * x], -1)
+    core_ = fine_inside & ndi.binary_erosion(fine_inside, iterations=8)
+    np.testing.assert_allclose(out[core_], ramp[core_], atol=1e-3)
+    assert np.isfinite(out).all() and np.all(out[island] == out[island][0])  # the orphan island: the mean
+    np.testing.assert_allclose(out[island][0], tex[seen].mean(axis=0), rtol=1e-5)
+    # A margin past the islands, then 0.
+    dist = ndi.distance_transform_cdt(~(fine_inside | island), metric="chessboard")
+    assert np.all(out[(dist > 0) & (dist <= 4) & ~(island | ndi.binary_dilation(island, iterations=40))] != 0)
+    assert np.all(out[dist > 12] == 0)
+    # At the same size it is fill_unseen.
+    np.testing.assert_array_equal(fill_scaled_up(tex, seen, inside, 4), fill_unseen(tex, seen, inside, 4))

@@ -145,3 +145,12 @@ def test_progress_lines_name_their_stage():
 
     assert stage_of("detail: photo 3/50") == "detail" and stage_of("solve") == "solve"
     assert stage_of("reading") is None and stage_of("") is None
+
+
+def test_time_left_says_nothing_while_the_photos_are_read():
+    # The gather's share is drawn before the run knows its size: 0.04 of the bar in 40 s says nothing of the rest.
+    t = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
+    t.update(0.0, 0.0, "gather")
+    assert t.update(0.04, 40.0, "gather") is None
+    t.update(0.05, 41.0, "bake")
+    assert t.update(0.1, 46.0, "bake") == pytest.approx(5.0 * 0.9 / 0.05)

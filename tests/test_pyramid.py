@@ -150,15 +150,24 @@ def test_upsample_bilinear_is_exact_for_a_linear_albedo():
     assert np.all(np.isnan(fine[~fine_seen]))
 
 
-@pytest.mark.parametrize("n", [5, 48])
-def test_upsampling_twice_on_the_grid_matches_the_lookup_per_texel(n):
-    rng = np.random.default_rng(n)
+@pytest.mark.parametrize("n,size", [(5, 10), (48, 96), (48, 192), (7, 224), (48, 100)])
+def test_upsampling_on_the_grid_matches_a_bilinear_lookup_per_texel(n, size):
+    from core.geometry.bilinear import interpolate
+    from core.geometry.texels import bilinear_texels, parent_texels, uv_of_texel
+
+    rng = np.random.default_rng(n + size)
     seen = rng.random((n, n)) < 0.7
     coarse = np.where(seen[..., None], rng.random((n, n, 3)), np.nan).astype(np.float32)
-    inside = rng.random((2 * n, 2 * n)) < 0.8
-    fast, fast_seen = pyramid._upsample_twice(coarse, seen, inside)
-    slow, slow_seen = pyramid._upsample_lookup(coarse, seen, inside)
-    np.testing.assert_array_equal(fast_seen, slow_seen)
-    assert fast_seen.any() and not fast_seen.all()
-    np.testing.assert_allclose(fast[fast_seen], slow[slow_seen], atol=1e-6)
-    assert np.all(np.isnan(fast[~fast_seen]))
+    inside = rng.random((size, size)) < 0.8
+    fine, fine_seen = pyramid.upsample_onto(coarse, seen, inside)
+    # Each texel of ``inside`` whose coarse texel was seen, looked up at its centre among the seen corners.
+    parent = parent_texels(size, n)
+    r, c = np.nonzero(inside & seen[parent][:, parent])
+    idx, w = bilinear_texels(uv_of_texel(r, c, size), seen)
+    ok = w.sum(axis=1) > 0
+    expect = np.full((size, size, 3), np.nan, np.float32)
+    expect[r[ok], c[ok]] = interpolate(coarse.reshape(-1, 3), idx[ok], w[ok], nan_as_zero=True)
+    np.testing.assert_array_equal(fine_seen, np.isfinite(expect[..., 0]))
+    assert fine_seen.any() and not fine_seen.all()
+    np.testing.assert_allclose(fine[fine_seen], expect[fine_seen], atol=1e-6)
+    assert np.all(np.isnan(fine[~fine_seen]))

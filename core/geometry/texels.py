@@ -26,6 +26,8 @@ __all__ = [
     "texel_of_uv",
     "uv_of_texel",
     "texel_index",
+    "parent_texels",
+    "coarser_any",
     "bilinear_texels",
     "nearest_texel",
     "texel_totals",
@@ -136,6 +138,21 @@ def uv_of_texel(row, col, n):
     row = np.asarray(row, dtype=np.float64)
     col = np.asarray(col, dtype=np.float64)
     return np.stack(np.broadcast_arrays((col + 0.5) / n, 1.0 - (row + 0.5) / n), axis=-1)
+
+
+def parent_texels(size: int, n: int) -> np.ndarray:
+    """For each row (or column) of a ``size`` x ``size`` texture, the row (column) of a coarser ``n`` x ``n``
+    texture that holds it: the texels a texture solved at ``n`` and scaled up to ``size`` took their values from.
+    """
+    return np.minimum(np.arange(size) * n // size, n - 1)
+
+
+def coarser_any(mask, n: int) -> np.ndarray:
+    """An ``(N, N)`` bool ``mask`` brought to ``n`` x ``n`` (``n <= N``): a texel is set where a texel of ``mask``
+    that it holds (:func:`parent_texels`) is set."""
+    mask = np.asarray(mask, bool)
+    starts = np.searchsorted(parent_texels(mask.shape[0], n), np.arange(n))
+    return np.logical_or.reduceat(np.logical_or.reduceat(mask, starts, axis=0), starts, axis=1)
 
 
 def texel_index(uv, n):

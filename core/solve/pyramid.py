@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.bilinear import interpolate, masked_corners
-from ..geometry.texels import bilinear_texels, uv_of_texel
+from ..geometry.texels import bilinear_texels, parent_texels
 from .problem import Correspondences, Problem, TextureLayout
 
-__all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "supported_size", "with_texture_size"]
+__all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "upsample_onto", "supported_size", "with_texture_size"]
 
 # Below these a level has too little data to say anything about the finer one.
 MIN_SIZE = 32
@@ -169,53 +169,41 @@ def upsample_bilinear(coarse: np.ndarray, seen: np.ndarray, layout: TextureLayou
     inside an island and the coarse texel it lies in was seen. Returns the
     ``(N, N, C)`` texture, NaN where not seen, and the seen mask.
     """
-    if layout.size == 2 * seen.shape[0]:
-        return _upsample_twice(coarse, seen, layout.inside)
-    return _upsample_lookup(coarse, seen, layout.inside)
+    return upsample_onto(coarse, seen, layout.inside)
 
 
-def _upsample_lookup(coarse, seen, inside):
-    """:func:`upsample_bilinear` by a bilinear lookup per fine texel (any ratio of sizes)."""
-    size, n = inside.shape[0], seen.shape[0]
-    parent = np.minimum(np.arange(size) * n // size, n - 1)
-    r, c = np.nonzero(inside & seen[parent][:, parent])
-    idx, w = bilinear_texels(uv_of_texel(r, c, size), seen)
-    fine = np.full((size, size, coarse.shape[-1]), np.nan, dtype=np.float32)
-    ok = w.sum(axis=1) > 0
-    fine[r[ok], c[ok]] = interpolate(coarse.reshape(-1, coarse.shape[-1]), idx[ok], w[ok], nan_as_zero=True)
-    return fine, np.isfinite(fine[..., 0])
-
-
-# Texel centres of a texture twice as large fall a quarter of a coarse texel from the coarse centres: fine row
-# 2k is at coarse row k - 1/4 (weights 1/4, 3/4 on rows k - 1, k), 2k + 1 at k + 1/4 (3/4, 1/4 on k, k + 1).
-def _twice(a, axis):
-    """The bilinear weights above along ``axis`` of ``a``, which is padded there with a zero each side."""
-    n = a.shape[axis] - 2
-    shape = list(a.shape)
-    shape[axis] = 2 * n
-    out = np.empty(shape, a.dtype)
-
-    def part(s):
-        return (slice(None),) * axis + (s,)
-
-    centre = a[part(slice(1, n + 1))]
-    for parity, side in ((0, slice(0, n)), (1, slice(2, n + 2))):
-        o = out[part(slice(parity, None, 2))]
-        np.multiply(centre, np.float32(0.75), out=o)
-        o += np.float32(0.25) * a[part(side)]
-    return out
-
-
-def _upsample_twice(coarse, seen, inside):
-    """:func:`upsample_bilinear` onto a texture of twice the size, on the grid (no lookup per texel)."""
-    n, C = seen.shape[0], coarse.shape[-1]
+def upsample_onto(coarse: np.ndarray, seen: np.ndarray, target: np.ndarray):
+    """:func:`upsample_bilinear` at the texels of ``target``, an ``(N, N)`` bool mask, in place of a layout's
+    islands; any ratio of the sizes, on the grid (no lookup per texel)."""
+    size, n, channels = target.shape[0], seen.shape[0], coarse.shape[-1]
     # Channels first, the seen weight as one more, padded by a texel of weight 0 each side.
-    padded = np.zeros((C + 1, n + 2, n + 2), np.float32)
-    padded[:C, 1:-1, 1:-1] = np.moveaxis(np.where(seen[..., None], np.nan_to_num(coarse), 0), -1, 0)
-    padded[C, 1:-1, 1:-1] = seen
-    both = _twice(_twice(padded, 1), 2)  # sums of weight x value, and of weight, over the seen corners
-    den = both[C]
-    fine_seen = inside & np.repeat(np.repeat(seen, 2, axis=0), 2, axis=1) & (den > 0)
+    padded = np.zeros((channels + 1, n + 2, n + 2), np.float32)
+    padded[:channels, 1:-1, 1:-1] = np.moveaxis(np.where(seen[..., None], np.nan_to_num(coarse), 0), -1, 0)
+    padded[channels, 1:-1, 1:-1] = seen
+    # Sums of weight x value, and of weight, over the seen corners: rows, then columns, a channel at a time.
+    both = np.empty((channels + 1, size, size), np.float32)
+    for k in range(channels + 1):
+        both[k] = _along(_along(padded[k], 0, size), 1, size)
+    den = both[channels]
+    parent = parent_texels(size, n)
+    fine_seen = target & seen[parent][:, parent] & (den > 0)
     scale = np.divide(1.0, den, out=np.full_like(den, np.nan), where=fine_seen)
-    both[:C] *= scale
-    return np.ascontiguousarray(np.moveaxis(both[:C], 0, -1)), fine_seen
+    both[:channels] *= scale
+    return np.ascontiguousarray(np.moveaxis(both[:channels], 0, -1)), fine_seen
+
+
+def _along(a, axis, size):
+    """``a`` (2-D, padded along ``axis`` by a zero each side) sampled linearly at ``size`` texel centres there.
+
+    Texel ``i`` of ``size`` has its centre at ``(i + 0.5) * n / size - 0.5`` in the ``n`` texels' coordinates:
+    at twice the size, a quarter of a texel from the centres (weights 1/4 and 3/4).
+    """
+    n = a.shape[axis] - 2
+    at = (np.arange(size) + 0.5) * n / size - 0.5
+    below = np.floor(at).astype(np.intp)
+    frac = (at - below).astype(np.float32)
+    shape = (size, 1) if axis == 0 else (1, size)
+    out = np.take(a, below + 1, axis=axis)
+    out *= (1 - frac).reshape(shape)
+    out += np.take(a, below + 2, axis=axis) * frac.reshape(shape)
+    return out

@@ -318,6 +318,10 @@ class Result:
         Texture domain: the albedo texture, NaN on texels no pixel saw.
     seen : (N, N) bool array or None
         Texture domain: texels with data.
+    solved : tuple or None
+        Texture domain, when the texture was solved smaller (``info["solved_size"]``) and scaled up to N:
+        the ``(texture, seen)`` it was solved as. Fill and fuse there (:func:`core.texture.fill.fill_scaled_up`):
+        the larger texture's texels between the solved ones carry no data of their own.
     """
 
     sigma: np.ndarray
@@ -327,6 +331,7 @@ class Result:
     texture: np.ndarray | None = None
     seen: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    solved: tuple | None = None
 
 
 #: Below this many observations the channels run in one thread: their steps are then short enough that the
@@ -765,9 +770,13 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
             "info": below.info,
         },
     }
+    solved = None
     if level.layout is not None:
+        solved = (texture, seen)
         texture, seen = upsample_bilinear(texture, seen, level.layout)
-    return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
+    return Result(
+        sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info, solved=solved
+    )
 
 
 def _warm_start(problem, d: Discretization, below: Result):

@@ -294,6 +294,7 @@ def solve_albedo(
             views=views,
             builds=builds,
         )
+        r.solved = (r.texture, r.seen)
         r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
         r.info["solved_size"] = size
         return r

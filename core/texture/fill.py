@@ -11,11 +11,11 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..geometry.texels import bilinear_texels
+from ..geometry.texels import bilinear_texels, coarser_any, parent_texels
 from ..parallel import thread_map
 from ..solve.cg import pcg
 
-__all__ = ["fill_unseen", "outline_only", "outline_pixels", "OUTLINE_EVIDENCE"]
+__all__ = ["fill_unseen", "fill_scaled_up", "outline_only", "outline_pixels", "OUTLINE_EVIDENCE"]
 
 #: :func:`outline_only`: a texel whose pixels off the outlines weigh less than this fraction of the median
 #: texel's pixels is filled from its neighbours.
@@ -204,26 +204,69 @@ def fill_unseen(texture, seen, inside, margin=4, threads=None):
         tex = tex[..., None]
     seen, inside = _check_args(tex, np.shape(texture), seen, inside, margin)
     n, c = tex.shape[0], tex.shape[2]
-    idx = np.flatnonzero(seen)
-    data = tex.reshape(n * n, c)[idx].astype(np.float64)
-    bad = ~np.isfinite(data).all(axis=1)
-    if bad.any():
-        r, col = divmod(int(idx[np.argmax(bad)]), n)
-        raise ValueError(f"fill_unseen: seen texel (row {r}, col {col}) is NaN or infinite")
+    # The seen values in float64 where they are and 0 elsewhere, in one pass over the texture (no index lists).
     vals = np.zeros((n, n, c))
+    np.copyto(vals, tex, where=seen[..., None])
+    if not np.isfinite(vals).all():
+        r, col = divmod(int(np.argmax(~np.isfinite(vals).all(axis=2))), n)
+        raise ValueError(f"fill_unseen: seen texel (row {r}, col {col}) is NaN or infinite")
     flat = vals.reshape(n * n, c)
-    flat[idx] = data
     dom = inside | seen
     labels, nlab = ndi.label(dom)
-    has_seen = np.bincount(labels.ravel()[idx], minlength=nlab + 1) > 0
+    has_seen = np.bincount(labels[seen], minlength=nlab + 1) > 0
     has_seen[0] = False
     orphan = dom & ~has_seen[labels]
+    # Islands without a seen texel take the mean of the seen ones.
+    mean = flat[np.flatnonzero(seen)].mean(axis=0) if orphan.any() else None
     free, x = _harmonic(vals, seen, dom & ~orphan, threads)
     flat[free] = x
-    flat[np.flatnonzero(orphan)] = data.mean(axis=0)
+    if mean is not None:
+        flat[orphan.ravel()] = mean
     vals = _dilate(vals, dom, margin)
     out = vals.astype(np.float32)
     return out[..., 0] if flat_in else out
+
+
+def fill_scaled_up(texture, seen, inside, margin=4, threads=None):
+    """:func:`fill_unseen` for a texture solved smaller than ``inside`` and scaled up to it after.
+
+    The texture is filled at its own size, where its texels hold the data, then sampled bilinearly at the
+    texels of ``inside``'s size (:func:`core.solve.pyramid.upsample_onto`); its margin is as many of its
+    texels as cover ``margin`` of the larger, and one more. Filled at the larger size, the harmonic fill would
+    solve for (size ratio)^2 times as many texels, for the same values. Its islands are where any texel of
+    ``inside`` is, so every texel of ``inside`` lies in a filled one.
+
+    Parameters
+    ----------
+    texture : (n, n, C) array
+        Values; only the seen texels are read.
+    seen : (n, n) bool array
+        Its texels with data.
+    inside : (N, N) bool array
+        The texels inside UV islands at the larger size, ``N >= n`` (``N == n``: :func:`fill_unseen`).
+    margin : int
+        Rings of texels past the islands at the larger size.
+    threads : int or None
+        As :func:`fill_unseen`.
+
+    Returns
+    -------
+    (N, N, C) float32 array: 0 beyond the margin.
+    """
+    from ..solve.pyramid import upsample_onto
+
+    seen, inside = np.asarray(seen, bool), np.asarray(inside, bool)
+    n, size = seen.shape[0], inside.shape[0]
+    if n == size:
+        return fill_unseen(texture, seen, inside, margin, threads)
+    rings = 1 + -(-margin * n // size)
+    small_inside = coarser_any(inside, n)
+    filled = fill_unseen(texture, seen, small_inside, rings, threads)
+    covered = ndi.binary_dilation(small_inside | seen, np.ones((3, 3), bool), iterations=rings)
+    parent = parent_texels(size, n)
+    fine, known = upsample_onto(filled, covered, covered[parent][:, parent])
+    fine[~known] = 0.0
+    return fine
 
 
 def _check_args(tex, shape, seen, inside, margin):
