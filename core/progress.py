@@ -94,11 +94,12 @@ class TimeLeft:
     """An estimate of the seconds a run has left, from its progress fraction over time.
 
     Feed it ``(fraction, time)`` pairs with :meth:`update`. The rate is measured from the first pair (so time
-    spent before the estimate started, such as the GUI's bake, does not count), or from the first pair of the
-    current stage when the pairs name their stage (the stages' shares of the bar are their expected durations,
-    :func:`spans`; the machine's speed is measured anew in each stage), and the estimate is smoothed over the
-    updates, so that one quick or slow step does not make it jump. There is no estimate during the gather: its
-    share is drawn before the photos are read, so it says nothing of how long the rest takes.
+    spent before the estimate started, such as the GUI's bake, does not count), and when the pairs name their
+    stage, from the first pair after the gather: the gather's share of the bar is drawn before the photos are
+    read, so it says nothing of how long the rest takes, and there is no estimate during it. The other stages'
+    shares are their expected durations (:func:`spans`), so the rate of the run so far holds for the rest,
+    through the stages' uneven steps (a solve's first seconds without an iteration). The estimate is smoothed
+    over the updates, so that one quick or slow step does not make it jump.
 
     Parameters
     ----------
@@ -114,18 +115,17 @@ class TimeLeft:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
         self.warmup, self.min_progress, self.smoothing = warmup, min_progress, smoothing
-        self._start = None  # (fraction, time) of the first pair (of the stage)
-        self._stage = None
+        self._start = None  # (fraction, time) of the first pair (after the gather)
+        self._stage = None  # the stage of that pair
         self._estimate = None  # seconds left at self._time
         self._time = None
 
     def update(self, fraction: float, now: float, stage: str | None = None) -> float | None:
-        """Take the run's ``fraction`` (0..1) at time ``now`` (seconds); return :meth:`estimate` at ``now``.
-
-        A new ``stage`` (not None) starts the rate's measurement again; the last estimate counts down meanwhile.
+        """Take the run's ``fraction`` (0..1) at time ``now`` (seconds) in ``stage`` (a name, or None); return
+        :meth:`estimate` at ``now``. The first pair after the gather starts the rate's measurement again.
         """
         fraction, now = min(max(float(fraction), 0.0), 1.0), float(now)
-        if self._start is None or (stage is not None and stage != self._stage):
+        if self._start is None or (self._stage == "gather" and stage != "gather"):
             self._start = (fraction, now)
             self._stage = stage
         f0, t0 = self._start

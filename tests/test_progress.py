@@ -126,13 +126,17 @@ def test_progress_printer_adds_the_time_left():
     ]
 
 
-def test_time_left_measures_each_stage_afresh():
-    # The solve crawls over 0.1 -> 0.4 in 300 s; the detail stage then runs at 0.05 a second from 0.42.
+def test_time_left_measures_the_rate_from_the_end_of_the_gather():
+    # The photos take 0 -> 0.05 in 40 s; then the run goes at 0.01 a second, but its solve spends 10 s building
+    # its problem before its first step: the rate since the gather holds through it.
     t = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
-    t.update(0.1, 0.0, "solve")
-    assert t.update(0.4, 300.0, "solve") == pytest.approx(600.0)  # 0.6 left at 0.001 per second
-    assert t.update(0.42, 310.0, "detail") == pytest.approx(590.0)  # a new stage: the last estimate counts down
-    assert t.update(0.52, 312.0, "detail") == pytest.approx(0.48 / 0.05)  # its own rate from its first pair
+    t.update(0.0, 0.0, "gather")
+    assert t.update(0.05, 40.0, "gather") is None
+    t.update(0.05, 40.0, "bake")
+    assert t.update(0.25, 60.0, "bake") == pytest.approx(75.0)  # 0.75 left at 0.01 a second
+    assert t.update(0.25, 70.0, "solve") == pytest.approx(0.75 * 30 / 0.2)  # 10 s of no progress slow it
+    assert t.update(0.45, 80.0, "solve") == pytest.approx(0.55 * 40 / 0.4)
+    assert t.update(0.85, 120.0, "detail") == pytest.approx(0.15 * 80 / 0.8)  # a new stage goes on with it
     # Without stages the rate is the run's since the first pair.
     plain = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
     plain.update(0.1, 0.0)
@@ -145,12 +149,3 @@ def test_progress_lines_name_their_stage():
 
     assert stage_of("detail: photo 3/50") == "detail" and stage_of("solve") == "solve"
     assert stage_of("reading") is None and stage_of("") is None
-
-
-def test_time_left_says_nothing_while_the_photos_are_read():
-    # The gather's share is drawn before the run knows its size: 0.04 of the bar in 40 s says nothing of the rest.
-    t = TimeLeft(warmup=0.0, min_progress=0.0, smoothing=1.0)
-    t.update(0.0, 0.0, "gather")
-    assert t.update(0.04, 40.0, "gather") is None
-    t.update(0.05, 41.0, "bake")
-    assert t.update(0.1, 46.0, "bake") == pytest.approx(5.0 * 0.9 / 0.05)
