@@ -104,8 +104,9 @@ def expected_seconds(options: Options, inputs) -> dict:
     texels = mp * int(options.texture_size) ** 2
     detail = runs_detail(options, inputs)
     # The texels solved: the lighting stage's alone before the detail stage; else no more than the pixels
-    # resolve (SolverParams.max_texels_per_pixel).
-    solved = min(texels, 0.016 if detail else 1.3 * working)
+    # resolve (SolverParams.max_texels_per_pixel: 2 per pixel on the mesh, about 2/3 of the photo).
+    light_size = int((options.solver or {}).get("light_size", DEFAULTS.light_size))
+    solved = min(texels, mp * light_size**2 if detail else 1.3 * working)
     if options.method == "project":
         solve = 0.1 * working
     elif detail:

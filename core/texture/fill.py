@@ -14,6 +14,7 @@ import scipy.sparse.linalg as spla
 from ..geometry.texels import bilinear_texels, coarser_any, parent_texels
 from ..parallel import thread_map
 from ..solve.cg import pcg
+from ..solve.pyramid import upsample_onto
 
 __all__ = ["fill_unseen", "fill_scaled_up", "outline_only", "outline_pixels", "OUTLINE_EVIDENCE"]
 
@@ -253,8 +254,6 @@ def fill_scaled_up(texture, seen, inside, margin=4, threads=None):
     -------
     (N, N, C) float32 array: 0 beyond the margin.
     """
-    from ..solve.pyramid import upsample_onto
-
     seen, inside = np.asarray(seen, bool), np.asarray(inside, bool)
     n, size = seen.shape[0], inside.shape[0]
     if n == size:

@@ -118,8 +118,10 @@ def test_worker_job_runs_and_cancels_without_touching_the_scene(tmp_path):
     job.join(120)
     assert job.done and job.error is None
     messages = job.poll()
-    assert messages and messages[-1][0] == pytest.approx(0.95)
-    assert all(0.3 <= f <= 0.95 for f, _ in messages)  # the worker's share: solve and fuse
+    stages = job.prepared.stages  # the bar's spans, set once the photos were read
+    assert messages and messages[-1][0] == pytest.approx(stages["fuse"][1])
+    # The worker's share: solve and fuse.
+    assert all(stages["solve"][0] <= f <= stages["fuse"][1] for f, _ in messages)
     assert scene_state() == before  # the worker never writes
     rep = pipeline.finish(s.scene, job.prepared, job.computed)
     assert rep.iterations >= 1 and (tmp_path / "out" / "Target_albedo.exr").is_file()
@@ -213,7 +215,7 @@ def test_progress_bar_follows_a_run_and_leaves_the_status_bar_after_it(tmp_path)
     assert "solve: albedo: iteration 2/3" in [t.split(" —")[0] for t in texts]
     assert not any("energy" in t for t in texts)
     factors = [f for f, _ in bars]
-    assert np.all(np.diff(factors) > -1e-9) and factors[-1] == pytest.approx(0.95)
+    assert np.all(np.diff(factors) > -1e-9) and factors[-1] == pytest.approx(job.prepared.stages["fuse"][1])
 
     end_progress()
     assert progress_bar() is None and not status_bar_hooked()
