@@ -275,7 +275,7 @@ def _lighting_choice(problem, opt, progress):
     return lam, variation, lighting
 
 
-def _find_sun(problem, inputs, bakes, lighting, opt, progress):
+def _find_sun(photos, masks, inputs, bakes, lighting, opt, progress):
     """The sun, found from the photos (option ``sun``), whose term becomes the transfer's last column.
 
     Returns the :class:`core.geometry.sun.SunLight` (None when not used) and a summary for the report. A light
@@ -291,8 +291,8 @@ def _find_sun(problem, inputs, bakes, lighting, opt, progress):
     t0 = time.perf_counter()
     try:
         found = find_sun(
-            problem.images,
-            problem.masks,
+            photos,
+            masks,
             [b.position for b in bakes],
             [b.normal for b in bakes],
             inputs.mesh.tri_pos,
@@ -436,7 +436,8 @@ def compute(
         if opt.method != "project":
             lam, variation, lighting = _lighting_choice(problem, opt, solve_progress)
             if opt.sun:
-                sun, sun_info = _find_sun(problem, inputs, bakes, lighting, opt, solve_progress)
+                # On every pixel, not the lighting stage's thinned ones: the search compares neighbouring pixels.
+                sun, sun_info = _find_sun(photos, solve_masks, inputs, bakes, lighting, opt, solve_progress)
                 check_cancel(cancel)
         layout = layout_job.result()
     check_cancel(cancel)

@@ -415,6 +415,21 @@ def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene)
     assert np.all(errors[True] < 1.2 * errors[False]), errors
 
 
+def test_the_sun_is_searched_on_every_pixel_when_the_lighting_stage_is_thinned(scene, monkeypatch):
+    """A capture with more pixels than the lighting stage's budget keeps its sun: the search compares
+    neighbouring pixels, which every k-th pixel of every k-th row has none of."""
+    import core.pipeline
+
+    inputs = inputs_of(scene, Loads(scene[4]))
+    bakes = [bake_view(v.camera, scene[0]) for v in inputs.views]
+    on_mesh = sum(int(b.mask.sum()) for b in bakes)
+    budget = on_mesh // 5  # every 3rd pixel of every 3rd row
+    assert not core.pipeline._thinned([b.mask for b in bakes], budget)[0][1::3].any()
+    monkeypatch.setattr(core.pipeline, "LIGHTING_PIXELS", budget)
+    out = compute(Options(texture_size=N, working_res_mp=WORKING_MP, detail=True, sun=True), inputs, bakes)
+    assert out.info["sun"]["used"], out.info["sun"]
+
+
 def test_detail_albedo_leaves_out_the_outline_and_its_blended_background(scene):
     # The photos' outline pixels made bright, as where a sky blends into them: with ``outlines`` the texels
     # keep what the other pixels show, and the same texels are reached.
