@@ -15,11 +15,11 @@ from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
-from .progress import check_cancel, spans, stage_progress
+from .progress import check_cancel, piecewise, shares, spans, stage_progress, sub_progress
 from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.solver import SolverParams
-from .solve.stages import solve
+from .solve.stages import LIGHTING_SHARE, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
@@ -34,6 +34,7 @@ __all__ = [
     "uses_detail",
     "schedule",
     "expected_seconds",
+    "solve_parts",
     "runs_detail",
     "LIGHTING_PIXELS",
     "stage_progress",
@@ -87,38 +88,66 @@ def runs_detail(options: Options, inputs) -> bool:
     return uses_detail(options) and any(v.full is not None for v in inputs.views)
 
 
+def _sizes(options: Options, inputs):
+    """Millions of working pixels, of full-resolution pixels (the detail stage's), of triangles and of texels."""
+    mp = 1e-6
+    views = inputs.views
+    working = mp * sum(v.photo.shape[0] * v.photo.shape[1] for v in views)
+    full = mp * sum(v.full.camera.width * v.full.camera.height for v in views if v.full is not None)
+    return working, full, mp * len(inputs.mesh.tri_pos), mp * int(options.texture_size) ** 2
+
+
+def _solved_texels(options: Options, inputs) -> float:
+    """Millions of texels the albedo is solved on: no more than the pixels resolve (SolverParams'
+    max_texels_per_pixel: 2 per pixel on the mesh, about 2/3 of the photo); before the detail stage, the
+    lighting stage's texture alone."""
+    working, _, _, texels = _sizes(options, inputs)
+    if runs_detail(options, inputs):
+        light_size = int((options.solver or {}).get("light_size", DEFAULTS.light_size))
+        return min(texels, 1e-6 * light_size**2)
+    return min(texels, 1.3 * working)
+
+
 def expected_seconds(options: Options, inputs) -> dict:
     """Roughly how long each stage after the gather takes, from the run's sizes, in run order.
 
     Only the ratios count (:func:`core.progress.spans`); the seconds are of the machine they were fitted on
     (Intel Xeon, 2 cores: 13 photos of 0.5, 1 and 12 MP, 50 of 24 MP; docs/measurements.md). The bake and
-    the photos' alignment go with the pixels and the triangles; the lighting-only solve before the detail
-    stage with the triangles (the occlusion, the sun's shadows), the full solve with the texels it solves;
-    the fuse and the writing with the texels; the detail stage with the full-resolution pixels.
+    the photos' alignment go with the pixels and the triangles; the solve is :func:`solve_parts`; the fuse and
+    the writing go with the texels; the detail stage with the full-resolution pixels.
     """
-    mp = 1e-6
-    views = inputs.views
-    working = mp * sum(v.photo.shape[0] * v.photo.shape[1] for v in views)
-    full = mp * sum(v.full.camera.width * v.full.camera.height for v in views if v.full is not None)
-    triangles = mp * len(inputs.mesh.tri_pos)
-    texels = mp * int(options.texture_size) ** 2
-    detail = runs_detail(options, inputs)
-    # The texels solved: the lighting stage's alone before the detail stage; else no more than the pixels
-    # resolve (SolverParams.max_texels_per_pixel: 2 per pixel on the mesh, about 2/3 of the photo).
-    light_size = int((options.solver or {}).get("light_size", DEFAULTS.light_size))
-    solved = min(texels, mp * light_size**2 if detail else 1.3 * working)
-    if options.method == "project":
-        solve = 0.1 * working
-    elif detail:
-        solve = 60.0 + 36.0 * triangles
-    else:
-        solve = 6.0 * solved + 20.0 * triangles + 1.0
-    fuse = 0.6 * solved + 0.08 * texels
-    seconds = {"bake": 0.3 * working + 20.0 * triangles, "solve": solve, "fuse": fuse}
-    if detail:
+    working, full, triangles, texels = _sizes(options, inputs)
+    solved = _solved_texels(options, inputs)
+    seconds = {
+        "bake": 0.3 * working + 20.0 * triangles,
+        "solve": sum(solve_parts(options, inputs).values()),
+        "fuse": 0.6 * solved + 0.08 * texels,
+    }
+    if runs_detail(options, inputs):
         seconds["detail"] = 0.31 * full
     seconds["write"] = 0.15 * texels + 0.02 * working
     return seconds
+
+
+def solve_parts(options: Options, inputs) -> dict:
+    """Roughly how long each part of the solve stage takes, as :func:`expected_seconds` (0 for a part the run
+    does not have), in run order: the occlusion; the sun's search, then the problem's making (its transfer, the
+    texture's layout); the lighting stage; the albedo stage. :func:`compute` draws each on its share of the
+    solve stage's bar.
+    """
+    working, _, triangles, texels = _sizes(options, inputs)
+    parts = {"occlusion": 0.0, "problem": 0.0, "lighting": 0.0, "albedo": 0.0}
+    if options.method == "project":
+        parts["problem"] = 0.1 * working
+        return parts
+    if options.occlusion:
+        parts["occlusion"] = 3.0 + 19.0 * triangles
+    parts["problem"] = (4.0 + 40.0 * triangles if options.sun else 0.0) + 0.17 * texels
+    # The lighting stage's pixels are thinned beyond LIGHTING_PIXELS (on the mesh; about 11 MP of photo).
+    parts["lighting"] = max(4.1 * min(working, 11.5) - 6.0, 5.0)
+    if options.albedo_lam is not None and not runs_detail(options, inputs):
+        parts["albedo"] = 4.4 * _solved_texels(options, inputs)
+    return parts
 
 
 def schedule(options: Options, inputs) -> dict:
@@ -402,6 +431,7 @@ def compute(
     light_masks = _thinned(solve_masks, LIGHTING_PIXELS) if lighting_only else solve_masks
     stages = schedule(opt, inputs) if stages is None else stages
     solve_progress = stage_progress(progress, "solve", stages)
+    parts = shares(solve_parts(opt, inputs))
 
     t = time.perf_counter()
     solve_progress(0.0, "building the problem")
@@ -418,7 +448,7 @@ def compute(
             check_cancel(cancel)
         cells = sun = sun_info = None
         if opt.occlusion and opt.method != "project":
-            cells, occlusion_s = _occlusion(inputs, bakes, opt, solve_progress)
+            cells, occlusion_s = _occlusion(inputs, bakes, opt, sub_progress(solve_progress, *parts["occlusion"]))
             peaks["occlusion"] = peak_mb()
             check_cancel(cancel)
         problem = Problem(
@@ -434,10 +464,11 @@ def compute(
         result = None
         lam, variation, lighting = opt.lam, None, opt.lighting
         if opt.method != "project":
-            lam, variation, lighting = _lighting_choice(problem, opt, solve_progress)
+            problem_progress = sub_progress(solve_progress, *parts["problem"])
+            lam, variation, lighting = _lighting_choice(problem, opt, problem_progress)
             if opt.sun:
                 # On every pixel, not the lighting stage's thinned ones: the search compares neighbouring pixels.
-                sun, sun_info = _find_sun(photos, solve_masks, inputs, bakes, lighting, opt, solve_progress)
+                sun, sun_info = _find_sun(photos, solve_masks, inputs, bakes, lighting, opt, problem_progress)
                 check_cancel(cancel)
         layout = layout_job.result()
     check_cancel(cancel)
@@ -459,11 +490,15 @@ def compute(
                 threads=opt.threads,
             )
         )
+        (first, lit), (_, last) = parts["lighting"], parts["albedo"]
         if lighting_only:
-            result = _lighting_stage(problem, params, solve_progress, cancel)
+            result = _lighting_stage(problem, params, sub_progress(solve_progress, first, last), cancel)
         else:
+            # The two-stage solve's own shares of its bar redrawn to the parts'.
+            points = [(0.0, first), (LIGHTING_SHARE, lit), (1.0, last)] if opt.albedo_lam is not None else None
+            solve_report = piecewise(solve_progress, points) if points else sub_progress(solve_progress, first, last)
             # The texture's per-view maps are sampled from the filled albedo below, not the solve's.
-            result = solve(problem, params, progress=solve_progress, cancel=cancel, views=opt.method != "texture")
+            result = solve(problem, params, progress=solve_report, cancel=cancel, views=opt.method != "texture")
     times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 

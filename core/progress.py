@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 import sys
+import threading
 import time
 
 from .errors import Cancelled
@@ -21,6 +22,9 @@ __all__ = [
     "STAGES",
     "STAGE_NAMES",
     "spans",
+    "shares",
+    "piecewise",
+    "StepCounter",
     "stage_progress",
     "stage_of",
     "check_cancel",
@@ -45,13 +49,18 @@ def spans(seconds: dict) -> dict:
     are known); the other stages share the rest of the bar in proportion to their seconds, so that a stage's
     rate of progress predicts the time left (:class:`TimeLeft`).
     """
-    start = STAGES["gather"][1]
+    return {"gather": STAGES["gather"], **shares(seconds, STAGES["gather"][1], 1.0)}
+
+
+def shares(seconds: dict, start: float = 0.0, end: float = 1.0) -> dict:
+    """``(lo, hi)`` of each part of ``start``..``end``, for parts expected to take ``seconds`` each, in order:
+    consecutive, in proportion to the seconds, the last ending at ``end``."""
     total = sum(max(float(s), 0.0) for s in seconds.values())
-    out, at = {"gather": STAGES["gather"]}, start
-    for i, (stage, s) in enumerate(seconds.items()):
-        end = 1.0 if i == len(seconds) - 1 else at + (1.0 - start) * max(float(s), 0.0) / total
-        out[stage] = (at, end)
-        at = end
+    out, at = {}, start
+    for i, (part, s) in enumerate(seconds.items()):
+        hi = end if i == len(seconds) - 1 else at + (end - start) * max(float(s), 0.0) / max(total, 1e-30)
+        out[part] = (at, hi)
+        at = hi
     return out
 
 
@@ -67,6 +76,38 @@ def sub_progress(progress, lo: float, hi: float, label: str = ""):
             progress(lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0), text)
 
     return report
+
+
+def piecewise(progress, points):
+    """A progress callback whose fraction ``x`` reaches ``progress`` as ``y``, linear between the ``(x, y)``
+    ``points`` (increasing in both, from ``x`` 0 to 1): a callee's own shares of its bar redrawn to the caller's.
+    """
+    xs, ys = zip(*points)
+
+    def report(fraction=0.0, message=""):
+        if progress is None:
+            return
+        x = min(max(float(fraction), xs[0]), xs[-1])
+        i = next(k for k in range(1, len(xs)) if x <= xs[k])
+        t = (x - xs[i - 1]) / (xs[i] - xs[i - 1]) if xs[i] > xs[i - 1] else 1.0
+        progress(ys[i - 1] + t * (ys[i] - ys[i - 1]), message)
+
+    return report
+
+
+class StepCounter:
+    """Tells ``progress`` the share of ``total`` steps done, as threads :meth:`add` them (``message`` unchanged)."""
+
+    def __init__(self, progress, total: int, message: str = ""):
+        self.progress, self.total, self.message = progress, max(int(total), 1), message
+        self.done = 0
+        self._lock = threading.Lock()
+
+    def add(self, steps: int = 1) -> None:
+        with self._lock:
+            self.done = min(self.done + int(steps), self.total)
+            if self.progress is not None:
+                self.progress(self.done / self.total, self.message)
 
 
 def stage_progress(progress, stage: str, stages: dict | None = None):

@@ -106,6 +106,17 @@ def test_the_rounds_stay_within_max_iter_and_stop_where_the_energy_has_stopped_f
     assert checks(max_iter=5, tol=0.0) == starts
     assert checks(max_iter=50, tol=1.0) == starts + 3 * (4 + 2)  # each end stops after one iteration
 
+    # Its progress moves forward to the end, whether or not the ends stop early.
+    for tol in (0.0, 1.0):
+        seen = []
+        tilt_search(
+            scene.problem,
+            first,
+            replace(params, max_iter=50, tol=tol),
+            progress=lambda f, m="", seen=seen: seen.append(f),
+        )
+        assert seen == sorted(seen) and seen[-1] == 1.0 and 0 < seen[0] < 0.1, seen[:3]
+
 
 @pytest.mark.parametrize(
     "bad",

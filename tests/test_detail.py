@@ -16,8 +16,8 @@ from core.geometry.bilinear import interpolate
 from core.geometry.camera import Camera
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
-from core.pipeline import Options, compute, schedule
-from core.progress import stage_of
+from core.pipeline import Options, compute, schedule, solve_parts
+from core.progress import shares, stage_of
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
 from core.texture.detail import agreement, detail_albedo, view_shadings
@@ -159,15 +159,15 @@ def test_bands_of_rows_bake_as_the_whole_view(scene):
 
 def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     albedo = scene[1]
-    runs = {}
-    bar = []
+    runs, bars = {}, {}
     for detail in (False, True):
         loads = Loads(scene[4])
         opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
         times = {}
         inputs = inputs_of(scene, loads)
         bakes = [bake_view(v.camera, scene[0]) for v in inputs.views]
-        out = compute(opt, inputs, bakes, times, progress=(lambda f, m="": bar.append((f, m))) if detail else None)
+        bar = bars[detail] = []
+        out = compute(opt, inputs, bakes, times, progress=lambda f, m="", bar=bar: bar.append((f, m)))
         runs[detail] = (out, loads, times)
     (coarse, _, t0), (fine, loads, t1) = runs[False], runs[True]
     seen = coarse.seen & fine.seen
@@ -182,13 +182,24 @@ def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     assert loads.calls == len(scene[3]) and loads.max_alive <= 1
     assert "detail" in t1 and "detail" not in t0
     assert fine.info["detail"] and not coarse.info["detail"]
-    # The bar moves forward only, each stage within its span of the run's schedule.
-    stages = schedule(opt, inputs)
-    assert [f for f, _ in bar] == sorted(f for f, _ in bar)
-    assert {stage_of(m) for _, m in bar} == {"solve", "fuse", "detail"}
-    for f, m in bar:
-        lo, hi = stages[stage_of(m)]
-        assert lo - 1e-9 <= f <= hi + 1e-9, (f, m)
+    # The bar moves forward only, each stage within its span of the run's schedule, and each part of the solve
+    # within its share of the solve's span.
+    for detail, bar in bars.items():
+        opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
+        stages = schedule(opt, inputs)
+        assert [f for f, _ in bar] == sorted(f for f, _ in bar)
+        assert {stage_of(m) for _, m in bar} == {"solve", "fuse", "detail"} - ({"detail"} if not detail else set())
+        for f, m in bar:
+            lo, hi = stages[stage_of(m)]
+            assert lo - 1e-9 <= f <= hi + 1e-9, (f, m)
+        parts = shares(solve_parts(opt, inputs), *stages["solve"])
+        assert (parts["albedo"][1] > parts["albedo"][0]) != detail
+        solve_bar = [(f, m) for f, m in bar if stage_of(m) == "solve"]
+        assert [f for f, m in solve_bar if m == "solve: occlusion"] == [parts["occlusion"][0]]
+        lighting = [f for f, m in solve_bar if "iteration" in m and "albedo" not in m]
+        albedo = [f for f, m in solve_bar if m.startswith("solve: albedo")]
+        assert lighting and parts["lighting"][0] - 1e-9 <= min(lighting) and max(lighting) <= parts["lighting"][1]
+        assert bool(albedo) != detail and all(parts["albedo"][0] - 1e-9 <= f for f in albedo)
 
 
 def test_detail_takes_one_photo_at_a_time_and_drops_a_highlight(scene):
@@ -372,6 +383,14 @@ def test_the_schedule_gives_each_stage_its_share_of_the_expected_time(scene):
     seconds = expected_seconds(opt, inputs)
     for stage, s in seconds.items():
         assert stages[stage][1] - stages[stage][0] == pytest.approx(0.95 * s / sum(seconds.values()))
+    # The solve's parts: with the detail stage after it, no albedo stage; without the occlusion, no occlusion;
+    # without the sun, a shorter search.
+    parts = solve_parts(opt, inputs)
+    assert seconds["solve"] == pytest.approx(sum(parts.values())) and parts["albedo"] == 0
+    assert min(parts["occlusion"], parts["problem"], parts["lighting"]) > 0
+    assert solve_parts(replace(opt, occlusion=False), inputs)["occlusion"] == 0
+    assert solve_parts(replace(opt, sun=False), inputs)["problem"] < parts["problem"]
+    assert solve_parts(opt, replace(inputs, views=[replace(v, full=None) for v in inputs.views]))["albedo"] > 0
 
     def share(stages, stage):
         return stages[stage][1] - stages[stage][0]

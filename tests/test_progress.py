@@ -149,3 +149,36 @@ def test_progress_lines_name_their_stage():
 
     assert stage_of("detail: photo 3/50") == "detail" and stage_of("solve") == "solve"
     assert stage_of("reading") is None and stage_of("") is None
+
+
+def test_shares_are_consecutive_and_in_proportion():
+    from core.progress import shares
+
+    out = shares({"a": 1.0, "b": 0.0, "c": 3.0}, 0.2, 0.6)
+    assert out["a"] == pytest.approx((0.2, 0.3)) and out["b"] == pytest.approx((0.3, 0.3))
+    assert out["c"] == (pytest.approx(0.3), 0.6)  # the last ends at the end, exactly
+
+
+def test_piecewise_redraws_a_callees_shares():
+    from core.progress import piecewise
+
+    seen = []
+    report = piecewise(lambda f, m="": seen.append((round(f, 6), m)), [(0.0, 0.1), (0.6, 0.3), (1.0, 0.9)])
+    for x in (0.0, 0.3, 0.6, 0.8, 1.0, 1.5, -0.5):
+        report(x, "m")
+    assert [f for f, _ in seen] == [0.1, 0.2, 0.3, 0.6, 0.9, 0.9, 0.1] and {m for _, m in seen} == {"m"}
+    piecewise(None, [(0.0, 0.0), (1.0, 1.0)])(0.5)  # no callback: nothing
+
+
+def test_step_counter_counts_the_steps_of_several_threads():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from core.progress import StepCounter
+
+    seen = []
+    steps = StepCounter(lambda f, m="": seen.append(f), 300, "searching")
+    with ThreadPoolExecutor(3) as pool:
+        list(pool.map(lambda _: [steps.add() for _ in range(100)], range(3)))
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 300
+    steps.add(5)  # more than the total: stays at the end
+    assert seen[-1] == 1.0

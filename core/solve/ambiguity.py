@@ -26,7 +26,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..geometry.transfer import sphere_directions
-from ..progress import check_cancel
+from ..progress import StepCounter, check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
 from .lighting import division_start, shading
@@ -75,7 +75,7 @@ def tilted_lighting(d, sigma: np.ndarray, normals: np.ndarray, a: np.ndarray, gr
     return out
 
 
-def tilt_search(problem, first: Result, params, cancel=None) -> Result:
+def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> Result:
     """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
 
     Parameters
@@ -91,6 +91,8 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
         ``first``'s albedo when ``light_edges > 0`` (:func:`core.solve.edges.with_edges_freed`): measured by
         plain TV, a lower energy is often a lighting that lowers the albedo's edges.
     cancel : callable() -> bool, optional
+    progress : callable(fraction, message), optional
+        Told the share of the search's iterations done (all channels), at most one at a time.
 
     Returns
     -------
@@ -117,6 +119,11 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
         done += rounds[-1][1]
     # Only the ends the first round iterates are held (each holds arrays over the observations).
     held = rounds[0][0] if rounds else 1
+    steps = StepCounter(
+        progress,
+        C * (len(tilts) * start_iter + sum(k * i for k, i in rounds)),
+        "searching along the albedo-lighting ambiguity",
+    )
 
     def channel(c):
         sigma = np.asarray(first.sigma[:, c], np.float64)
@@ -134,6 +141,7 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
                 before = ch.e
             for _ in range(start_iter):
                 ch.step()
+            steps.add(start_iter)
             ends = sorted([*ends, (ch, a)], key=lambda end: end[0].e)[:held]
         for keep, iterations in rounds:
             ends = ends[:keep]
@@ -144,6 +152,8 @@ def tilt_search(problem, first: Result, params, cancel=None) -> Result:
                     prev = ch.e
                     if stalled(prev, ch.step(), params.tol):
                         break
+                steps.add(iterations)  # those a stall left out as well
+            steps.add((keep - len(ends)) * iterations)
             ends.sort(key=lambda end: end[0].e)
         best, a = ends[0]
         return best, {"tilt": a.tolist(), "energy_before": before, "energy_after": best.e}

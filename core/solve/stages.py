@@ -23,7 +23,7 @@ import numpy as np
 from ..geometry.texels import texel_totals
 from ..memory import release_free_memory
 from ..parallel import blas_on_one_thread, joined, start
-from ..progress import check_cancel, sub_progress
+from ..progress import check_cancel, shares, sub_progress
 from .ambiguity import tilt_search
 from .discretization import image_domain, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
@@ -44,6 +44,7 @@ from .solver import (
 
 __all__ = [
     "ALBEDO_LAMBDA",
+    "LIGHTING_SHARE",
     "adapted_albedo_lam",
     "colour_texture",
     "lighting_data_model",
@@ -404,17 +405,22 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
     tilts = params.light_tilts > 0 and params.domain == "texture"
-    first = solve_joint(
-        light_problem, light_params, sub_progress(progress, 0.0, 0.6 if edges or tilts else 1.0), cancel
-    )
+    # The bar's shares of the first run, the search and the edges' run, as their times were measured.
+    parts = shares({"first": 0.4, **({"tilts": 0.55} if tilts else {}), **({"edges": 0.05} if edges else {})})
+    first = solve_joint(light_problem, light_params, sub_progress(progress, *parts["first"]), cancel)
     if tilts:
-        sub_progress(progress, 0.6, 1.0)(0.0, "searching along the albedo-lighting ambiguity")
-        first = tilt_search(light_problem, first, light_params, cancel)
+        tilts_progress = sub_progress(progress, *parts["tilts"])
+        tilts_progress(0.0, "searching along the albedo-lighting ambiguity")
+        first = tilt_search(light_problem, first, light_params, cancel, tilts_progress)
     if edges:
-        edges_progress = sub_progress(progress, 0.6, 1.0, "edges")
+        edges_progress = sub_progress(progress, *parts["edges"], "edges")
         first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
     first.info["data_model"] = light_params.data_model
     return light_problem, first
+
+
+#: The share of :func:`solve_two_stage`'s progress bar that its lighting stage takes (the albedo stage the rest).
+LIGHTING_SHARE = 0.6
 
 
 def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
@@ -436,7 +442,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     albedo_params = replace(params, lam=params.albedo_lam)
     # The albedo stage's starts are built while the lighting stage runs (its coarse levels leave a core idle).
     with joined(start(_start_builds, problem, albedo_params, threads=params.threads)) as builds:
-        light_problem, first = lighting_stage(problem, params, sub_progress(progress, 0.0, 0.6, "lighting"), cancel)
+        lighting_progress = sub_progress(progress, 0.0, LIGHTING_SHARE, "lighting")
+        light_problem, first = lighting_stage(problem, params, lighting_progress, cancel)
         builds = builds.result()
     first.views = None  # not needed: free them before the larger stage
     texture = None
@@ -446,7 +453,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     light_pixels = sum(int(m.sum()) for m in light_problem.masks)
     light_problem = None  # its thinned photos too
     t1 = time.perf_counter()
-    albedo_progress = sub_progress(progress, 0.6, 1.0, "albedo")
+    albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
     if texture is not None:
         albedo_progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
     second = solve_albedo(
