@@ -18,6 +18,7 @@ from .parallel import blas_on_one_thread, joined, start, thread_map
 from .progress import check_cancel, piecewise, shares, spans, stage_progress, sub_progress
 from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
+from .solve.pyramid import seen_onto
 from .solve.solver import SolverParams
 from .solve.stages import LIGHTING_SHARE, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
@@ -497,8 +498,12 @@ def compute(
             # The two-stage solve's own shares of its bar redrawn to the parts'.
             points = [(0.0, first), (LIGHTING_SHARE, lit), (1.0, last)] if opt.albedo_lam is not None else None
             solve_report = piecewise(solve_progress, points) if points else sub_progress(solve_progress, first, last)
-            # The texture's per-view maps are sampled from the filled albedo below, not the solve's.
-            result = solve(problem, params, progress=solve_report, cancel=cancel, views=opt.method != "texture")
+            # The texture's per-view maps are sampled from the filled albedo below, not the solve's; a texture
+            # solved smaller is filled there, then scaled up (below).
+            on_texels = opt.method == "texture"
+            result = solve(
+                problem, params, progress=solve_report, cancel=cancel, views=not on_texels, scale_up=not on_texels
+            )
     times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)
 
@@ -515,7 +520,9 @@ def compute(
             outline = outline_only(uvs, masks, weights, solved_seen, used=solve_masks)
             known = solved_seen & ~outline
         albedo = fill_scaled_up(texture, known if known.any() else solved_seen, layout.inside, 4, opt.threads)
-        seen = None if result.seen is None else np.asarray(result.seen, dtype=bool)  # None: the detail stage's
+        seen = None  # the detail stage's
+        if not lighting_only:
+            seen = solved_seen if result.solved is None else seen_onto(solved_seen, layout.inside)
     else:
         # Image domain: fuse the per-view reflectance; project: the photos themselves.
         maps = result.views if result is not None else problem.images

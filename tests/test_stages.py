@@ -334,3 +334,19 @@ def test_the_lighting_stages_balance_must_be_finite_and_not_negative():
     for bad in (-0.5, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="light_balance"):
             SolverParams(light_balance=bad).check()
+
+
+@pytest.mark.parametrize("albedo_lam", [None, 0.3])
+def test_a_texture_solved_smaller_can_be_left_as_solved(albedo_lam):
+    # 6 photos of 60 x 80 cannot resolve 256^2 texels: the texture is solved smaller. Without scale_up it is
+    # left so (the pipeline fills it there before it scales it up); its texels seen at 256 are those of seen_onto.
+    from core.solve.pyramid import seen_onto
+
+    scene = sphere_scene(n_views=6, height=60, width=80, texture_size=256, seed=4)
+    params = SolverParams(lam=5.0, albedo_lam=albedo_lam, max_iter=4, coarse_iter=4)
+    up = solve(scene.problem, params, views=False)
+    kept = solve(scene.problem, params, views=False, scale_up=False)
+    assert up.info["solved_size"] < 256 and up.texture.shape[0] == 256
+    assert kept.texture is None and kept.seen is None
+    np.testing.assert_array_equal(kept.solved[0], up.solved[0])
+    np.testing.assert_array_equal(seen_onto(kept.solved[1], scene.problem.texture.inside), up.seen)

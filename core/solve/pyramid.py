@@ -16,7 +16,15 @@ from ..geometry.bilinear import interpolate, masked_corners
 from ..geometry.texels import bilinear_texels, parent_texels
 from .problem import Correspondences, Problem, TextureLayout
 
-__all__ = ["coarsen", "upsample_pixels", "upsample_bilinear", "upsample_onto", "supported_size", "with_texture_size"]
+__all__ = [
+    "coarsen",
+    "upsample_pixels",
+    "upsample_bilinear",
+    "upsample_onto",
+    "seen_onto",
+    "supported_size",
+    "with_texture_size",
+]
 
 # Below these a level has too little data to say anything about the finer one.
 MIN_SIZE = 32
@@ -185,11 +193,18 @@ def upsample_onto(coarse: np.ndarray, seen: np.ndarray, target: np.ndarray):
     for k in range(channels + 1):
         both[k] = _along(_along(padded[k], 0, size), 1, size)
     den = both[channels]
-    parent = parent_texels(size, n)
-    fine_seen = target & seen[parent][:, parent] & (den > 0)
+    # Where the texel's own coarse texel was seen, it has at least a quarter of the weight: den > 0.
+    fine_seen = seen_onto(seen, target)
     scale = np.divide(1.0, den, out=np.full_like(den, np.nan), where=fine_seen)
     both[:channels] *= scale
     return np.ascontiguousarray(np.moveaxis(both[:channels], 0, -1)), fine_seen
+
+
+def seen_onto(seen: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The texels of ``target`` (an ``(N, N)`` bool mask) that :func:`upsample_onto` gives a value from the
+    coarser ``seen``: those whose own coarse texel was seen."""
+    parent = parent_texels(target.shape[0], seen.shape[0])
+    return target & seen[parent][:, parent]
 
 
 def _along(a, axis, size):

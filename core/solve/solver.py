@@ -315,11 +315,12 @@ class Result:
     iterations : int
         Outer iterations done at the finest level.
     texture : (N, N, C) float32 array or None
-        Texture domain: the albedo texture, NaN on texels no pixel saw.
+        Texture domain: the albedo texture, NaN on texels no pixel saw (None when solved smaller and not
+        scaled up: ``scale_up`` False).
     seen : (N, N) bool array or None
         Texture domain: texels with data.
     solved : tuple or None
-        Texture domain, when the texture was solved smaller (``info["solved_size"]``) and scaled up to N:
+        Texture domain, when the texture was solved smaller (``info["solved_size"]``) than N:
         the ``(texture, seen)`` it was solved as. Fill and fuse there (:func:`core.texture.fill.fill_scaled_up`):
         the larger texture's texels between the solved ones carry no data of their own.
     """
@@ -606,7 +607,9 @@ class Channel:
         return self.e
 
 
-def solve_joint(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
+def solve_joint(
+    problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True, scale_up: bool = True
+) -> Result:
     """Estimate reflectance and lighting together with alternating MM: the paper's algorithm.
 
     The levels of :func:`_ladder` are solved coarse to fine, each started
@@ -623,6 +626,9 @@ def solve_joint(problem, params: SolverParams | None = None, progress=None, canc
     views : bool
         False: a texture-domain result without its per-view maps (``Result.views`` None), which cost a pass
         over every observation; the image domain always has them.
+    scale_up : bool
+        False: a texture solved smaller than the problem's (``max_texels_per_pixel``) is left as solved, in
+        ``Result.solved``, with ``Result.texture`` and ``seen`` None; for a caller that fills it there first.
 
     Returns
     -------
@@ -641,7 +647,8 @@ def solve_joint(problem, params: SolverParams | None = None, progress=None, canc
     result = None
     for i, level in enumerate(levels):
         last = i == len(levels) - 1
-        result = _solve_level(level, result, _level_report(progress, levels, i), poll, t0, views or not last)
+        report = _level_report(progress, levels, i)
+        result = _solve_level(level, result, report, poll, t0, views or not last, scale_up or not last)
     return result
 
 
@@ -718,7 +725,9 @@ def _level_report(progress, levels, i):
     return report
 
 
-def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: float, views=True) -> Result:
+def _solve_level(
+    level: _Level, below: Result | None, report, check_cancel, t0: float, views=True, scale_up=True
+) -> Result:
     """Build one level's discretisation, start it from the level below, iterate, and rescale."""
     problem, params = level.problem, level.params
     base = 0.0 if below is None else _COARSE_SHARE  # of the progress bar, taken by the levels below
@@ -773,7 +782,7 @@ def _solve_level(level: _Level, below: Result | None, report, check_cancel, t0: 
     solved = None
     if level.layout is not None:
         solved = (texture, seen)
-        texture, seen = upsample_bilinear(texture, seen, level.layout)
+        texture, seen = upsample_bilinear(texture, seen, level.layout) if scale_up else (None, None)
     return Result(
         sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info, solved=solved
     )

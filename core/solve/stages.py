@@ -58,7 +58,9 @@ __all__ = [
 
 
 @blas_on_one_thread()
-def solve(problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True) -> Result:
+def solve(
+    problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True, scale_up: bool = True
+) -> Result:
     """Estimate the albedo and the lighting: in two stages when ``params.albedo_lam`` is set, else jointly.
 
     The parameters are :func:`core.solve.solver.solve_joint`'s; returns :func:`solve_two_stage`'s result, or
@@ -68,8 +70,8 @@ def solve(problem, params: SolverParams | None = None, progress=None, cancel=Non
     params.check()
     params = params.resolved()
     if params.albedo_lam is None:
-        return solve_joint(problem, params, progress, cancel, views)
-    return solve_two_stage(problem, params, progress, cancel, views)
+        return solve_joint(problem, params, progress, cancel, views, scale_up)
+    return solve_two_stage(problem, params, progress, cancel, views, scale_up)
 
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
@@ -237,6 +239,7 @@ def solve_albedo(
     merged=False,
     views=True,
     builds=None,
+    scale_up=True,
 ):
     """The albedo under a fixed lighting: the MM's rho-steps alone (a convex problem).
 
@@ -271,6 +274,8 @@ def solve_albedo(
         False: no per-view maps in a texture-domain result (as :func:`core.solve.solver.solve`).
     builds : dict, optional
         :func:`_start_builds`' half-size starts, taken out as they are used.
+    scale_up : bool
+        As :func:`core.solve.solver.solve_joint`'s.
 
     Returns
     -------
@@ -296,7 +301,7 @@ def solve_albedo(
             builds=builds,
         )
         r.solved = (r.texture, r.seen)
-        r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture)
+        r.texture, r.seen = upsample_bilinear(r.texture, r.seen, problem.texture) if scale_up else (None, None)
         r.info["solved_size"] = size
         return r
     half = coarse = None
@@ -423,7 +428,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
 LIGHTING_SHARE = 0.6
 
 
-def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
+def solve_two_stage(problem, params, progress=None, cancel=None, views=True, scale_up=True):
     """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
 
     Stage 1 is :func:`core.solve.solver.solve` with ``params`` (TV weight
@@ -457,7 +462,14 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True):
     if texture is not None:
         albedo_progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
     second = solve_albedo(
-        problem, first.sigma, albedo_params, progress=albedo_progress, cancel=cancel, views=views, builds=builds
+        problem,
+        first.sigma,
+        albedo_params,
+        progress=albedo_progress,
+        cancel=cancel,
+        views=views,
+        builds=builds,
+        scale_up=scale_up,
     )
     second.info["lighting_stage"] = {
         "iterations": first.iterations,
