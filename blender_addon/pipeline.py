@@ -375,7 +375,8 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
     names = [v.name for v in inputs.views]
     albedo_file, *view_files = _output_names(inputs.object_name, names, opt.method)[: 1 + len(names)]
     stage(0.0, f"files in {prepared.out_dir}")
-    contents = {albedo_file: _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)}
+    albedo_pixels = _outputs.rgba(computed.albedo, computed.seen, zero_outside=False)
+    contents = {albedo_file: albedo_pixels}
     for b, f, values in zip(prepared.bakes, view_files, computed.views):
         contents[f] = _outputs.rgba(values, b.mask)
     contents.update(_lighting_outputs(prepared, computed, view_files))
@@ -394,11 +395,12 @@ def finish(scene, prepared: Prepared, computed: Computed, progress=None, cancel=
         cancel=cancel,
         threads=opt.threads,
     )
+    del contents  # written: the image below reuses the albedo's pixels, and nothing else is held
     # The files are in place: from here on a failure says so. The .blend is saved last.
     saved = None
     try:
         stage(0.6, "material")
-        image = _write.make_albedo_image(f"{inputs.object_name}_albedo", computed.albedo, computed.seen)
+        image = _write.make_albedo_image(f"{inputs.object_name}_albedo", albedo_pixels)
         mats = _material.wire_albedo(obj, image, inputs.mesh.uv_map)
         _previews.update(inputs.object_name, prepared, computed)  # pictures for the panel
         if opt.save_blend:

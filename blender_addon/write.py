@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core.io.outputs import rgba
 from .photos import working_space
 
 __all__ = ["make_albedo_image"]
 
 
-def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
-    """Create the packed float image ``name`` holding the RGBA albedo.
+def make_albedo_image(name: str, pixels: np.ndarray):
+    """Create the packed float image ``name`` holding the RGBA albedo ``pixels``.
+
+    ``pixels`` is ``(H, W, 4)`` float32 with row 0 at the top, as the albedo file is written
+    (:func:`core.io.outputs.rgba`); its rows are reversed in place, for Blender's row 0 is the bottom: at 8192^2
+    a reversed copy would be one more GB at the run's peak.
 
     An image of that name that an earlier run made (tagged ``delight``) is
     replaced: its users are remapped to the new one and it is removed, so
@@ -20,7 +23,6 @@ def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
     """
     import bpy
 
-    pixels = rgba(albedo, np.asarray(seen, dtype=np.float32), zero_outside=False)
     n_rows, n_cols = pixels.shape[:2]
     old = bpy.data.images.get(name)
     if old is not None and (not old.get("delight") or old.library is not None):
@@ -31,7 +33,8 @@ def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
     # is a "seen" mask, not coverage, so it must not premultiply the colour.
     img.colorspace_settings.name = working_space()
     img.alpha_mode = "CHANNEL_PACKED"
-    img.pixels.foreach_set(np.ascontiguousarray(pixels[::-1]).ravel())  # Blender's row 0 is the bottom
+    _reverse_rows(pixels)
+    img.pixels.foreach_set(pixels.ravel())
     img.file_format = "OPEN_EXR"  # float32 EXR in the .blend; PNG would quantise
     img.update()
     img.pack()
@@ -40,3 +43,13 @@ def make_albedo_image(name: str, albedo: np.ndarray, seen: np.ndarray):
         bpy.data.images.remove(old)
         img.name = name
     return img
+
+
+def _reverse_rows(a: np.ndarray) -> None:
+    """``a``'s rows in reverse order, in place, a pair of rows at a time."""
+    row = np.empty_like(a[0])
+    for i in range(a.shape[0] // 2):
+        j = a.shape[0] - 1 - i
+        row[...] = a[i]
+        a[i] = a[j]
+        a[j] = row
