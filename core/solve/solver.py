@@ -800,14 +800,30 @@ def _warm_start(problem, d: Discretization, below: Result):
 
 
 def iteration_report(progress, max_iter: int):
-    """``report(iteration, energy)`` for :func:`iterate`: ``progress`` (None: nothing) told the iteration's
-    fraction of ``max_iter`` and its energy."""
+    """``report(iteration, energy, fraction=None)`` for :func:`iterate`: ``progress`` (None: nothing) told the
+    fraction done (default the iteration's of ``max_iter``) and the energy."""
 
-    def report(it, e):
+    def report(it, e, fraction=None):
         if progress is not None:
-            progress(it / max_iter, f"iteration {it}, energy {e:.6g}")
+            progress(it / max_iter if fraction is None else fraction, f"iteration {it}, energy {e:.6g}")
 
     return report
+
+
+#: :func:`iterate`'s bar goes no further than this on the energy's convergence alone: the stopping test ends it.
+_CONVERGED_SHARE = 0.95
+
+
+def converged_share(first: float, change: float, tol: float) -> float:
+    """How far a loop whose relative energy change went from ``first`` (its first) to ``change`` is towards
+    its stopping test (``tol``), on a log scale: 0 at the first, :data:`_CONVERGED_SHARE` at ``tol``.
+
+    The MM's energy falls about geometrically, so its log change is about linear in the iterations: a loop that
+    stops early moves the bar at the pace of its iterations rather than of ``max_iter``'s.
+    """
+    if not (first > tol and change > 0):
+        return 0.0
+    return _CONVERGED_SHARE * min(max(np.log(first / change) / np.log(first / tol), 0.0), 1.0)
 
 
 def stalled(prev: float, cur: float, tol: float) -> bool:
@@ -829,14 +845,19 @@ def iterate(channels, params: SolverParams, report, check_cancel, t0: float, don
         pool = ThreadPoolExecutor(max_workers=channel_threads(params, len(channels), channels[0].d.obs_pixel.size))
     least = params.min_iter if least is None else least
     history, elapsed = [sum(ch.e for ch in channels)], [time.perf_counter() - t0]
+    first, reached = None, 0.0  # the first relative change, and the furthest share of the way to the stop
     try:
         for it in range(done + 1, params.max_iter + 1):
             check_cancel()
             history.append(sum(pool.map(lambda ch: ch.step(), channels)))
             release_after_iteration(channels[0].d)
             elapsed.append(time.perf_counter() - t0)
-            report(it, history[-1])
             prev, cur = history[-2], history[-1]
+            change = abs(prev - cur) / max(abs(prev), 1e-30)
+            first = change if first is None else first
+            reached = max(reached, converged_share(first, change, params.tol))
+            start = done / params.max_iter
+            report(it, cur, max(it / params.max_iter, start + (1 - start) * reached))
             if it - done >= least and stalled(prev, cur, params.tol):
                 break
     finally:
