@@ -100,15 +100,14 @@ def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
     from types import SimpleNamespace
 
     from core.pipeline import _find_sun
-    from core.solve.problem import Problem
 
     photos, masks, positions, normals = _views(scene, 1.0)
     rows, cols = np.indices(masks[0].shape)
     apart = [m & ((rows + cols) % 2 == 0) for m in masks]  # a checkerboard: no neighbour right or below
-    problem = Problem(images=photos, masks=apart, normals=normals)
     said = []
     sun, info = _find_sun(
-        problem,
+        photos,
+        apart,
         SimpleNamespace(mesh=SimpleNamespace(tri_pos=scene)),
         [SimpleNamespace(position=p, normal=n) for p, n in zip(positions, normals)],
         "coupled",
