@@ -120,13 +120,13 @@ def expected_seconds(options: Options, inputs) -> dict:
     working, full, triangles, texels = _sizes(options, inputs)
     solved = _solved_texels(options, inputs)
     seconds = {
-        "bake": 0.3 * working + 20.0 * triangles,
+        "bake": 0.3 * working + 20.0 * triangles + 1.5,
         "solve": sum(solve_parts(options, inputs).values()),
-        "fuse": 0.6 * solved + 0.08 * texels,
+        "fuse": 0.6 * solved + 0.17 * texels,
     }
     if runs_detail(options, inputs):
         seconds["detail"] = 0.31 * full
-    seconds["write"] = 0.15 * texels + 0.02 * working
+    seconds["write"] = 0.25 * texels + 0.02 * working + 1.5
     return seconds
 
 
