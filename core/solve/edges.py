@@ -83,6 +83,6 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     d = with_edges_freed(d, rho, params.light_edges)
     channels = [Channel(d, c, params, rho[:, c], first.sigma[:, c]) for c in range(C)]
 
-    report = iteration_report(progress, params.max_iter)
+    report = iteration_report(progress)
     history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), time.perf_counter())
     return continued_result(problem, d, channels, first, edges={"iterations": len(history) - 1, "energy": history[-1:]})

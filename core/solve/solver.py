@@ -750,7 +750,7 @@ def _solve_level(
     history, elapsed = iterate(
         channels,
         params,
-        iteration_report(lambda frac, msg: report(base + (1 - base) * frac, msg), params.max_iter),
+        iteration_report(lambda frac, msg: report(base + (1 - base) * frac, msg)),
         check_cancel,
         t0,
     )
@@ -799,13 +799,13 @@ def _warm_start(problem, d: Discretization, below: Result):
     return np.where(np.isfinite(up), up, d.rho0), below.sigma
 
 
-def iteration_report(progress, max_iter: int):
-    """``report(iteration, energy, fraction=None)`` for :func:`iterate`: ``progress`` (None: nothing) told the
-    fraction done (default the iteration's of ``max_iter``) and the energy."""
+def iteration_report(progress):
+    """``report(iteration, energy, fraction)`` for :func:`iterate`: ``progress`` (None: nothing) told the fraction
+    done and the energy."""
 
-    def report(it, e, fraction=None):
+    def report(it, e, fraction):
         if progress is not None:
-            progress(it / max_iter if fraction is None else fraction, f"iteration {it}, energy {e:.6g}")
+            progress(fraction, f"iteration {it}, energy {e:.6g}")
 
     return report
 
@@ -835,7 +835,8 @@ def iterate(channels, params: SolverParams, report, check_cancel, t0: float, don
     """The outer MM loop over all channels; returns the energy history and its times since ``t0``.
 
     Iterations are numbered on from ``done`` up to ``params.max_iter``, and
-    ``report(iteration, energy)`` is called after each. The stopping test on
+    ``report(iteration, energy, fraction)`` is called after each, the fraction the larger of the iteration's
+    share of ``max_iter`` and the energy's convergence (:func:`converged_share`). The stopping test on
     the relative energy change is skipped before ``least`` iterations of this
     call (default ``params.min_iter``), so that a warm start cannot stop the
     loop at once. ``pool``: the channels' threads, if the caller has them.

@@ -350,7 +350,7 @@ def solve_albedo(
         rho0 = None  # each channel has its own copy
         release_free_memory()  # the build's temporaries
         for delta, span in zip(deltas, spans):
-            report = iteration_report(sub_progress(progress, *span), params.max_iter)
+            report = iteration_report(sub_progress(progress, *span))
             if delta != channels[0].delta:
                 for ch in channels:
                     ch.delta = delta
