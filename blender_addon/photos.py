@@ -13,7 +13,9 @@ Decoding goes through Blender's colour management, so the image's colour space
 up in the file's linear working space: float images (EXR, HDR, 16-bit) come out
 of ``Image.pixels`` already converted; for 8-bit images ``Image.pixels`` holds the
 raw codes / 255 whatever the colour space, so Blender converts them by writing a
-float EXR into a temporary folder (:func:`_byte_image_linear`).
+float EXR into a temporary folder (:func:`_byte_image_linear`): a small image of probe colours, whose result
+gives every code's colour (:func:`_code_tables`), or where the colour space mixes the channels in a way that
+tables cannot follow, the whole photo.
 
 Nothing is left changed: an image loaded from the folder is removed after
 reading, and pixel buffers we caused to load are freed again.
@@ -29,7 +31,7 @@ from .core.errors import DelightError
 from .core.io.exr import read_exr
 from .core.io.photos import clipped_pixels
 
-__all__ = ["EXTENSIONS", "image_pixels", "find_photo"]
+__all__ = ["EXTENSIONS", "read_pixels", "image_pixels", "find_photo"]
 
 #: File endings tried in the images folder, in order of preference.
 EXTENSIONS = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".hdr", ".bmp", ".webp", ".tga")
@@ -85,19 +87,90 @@ def _byte_image_linear(img, opaque=False):
     return rgb
 
 
-def image_pixels(img, camera_name, label=None, info=None):
-    """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top.
+def _probe_codes():
+    """``(16, 256, 3)`` uint8: each channel's 256 codes alone, the greys, the cube's corners and random colours."""
+    ramp, zero = np.arange(256), np.zeros(256, np.int64)
+    corners = np.array([[r, g, b] for r in (0, 255) for g in (0, 255) for b in (0, 255)])
+    colours = np.random.default_rng(0).integers(0, 256, (12 * 256 - len(corners), 3))
+    alone = [np.stack([ramp if k == j else zero for j in range(3)], axis=1) for k in range(3)]
+    return np.concatenate([*alone, np.stack([ramp] * 3, axis=1), corners, colours]).reshape(16, 256, 3).astype(np.uint8)
 
-    ``label`` names the photo in messages (default: the image's name and file).
-    ``info`` (a dict), if given, receives ``"float"``: whether the image is
-    stored as floats, and for 8-bit images ``"clipped"``: the (H, W) pixels
-    with a channel at or above :data:`core.io.photos.CLIP_CODE`.
+
+def _code_tables(img):
+    """How Blender converts ``img``'s 8-bit codes: ``(3, 256, 3)`` float32 tables, or None.
+
+    A colour space is a curve per channel and then a matrix (sRGB, Non-Color, the linear and log spaces, a working
+    space other than Rec.709), so a colour is the sum of what each of its codes gives alone:
+    ``tables[0][r] + tables[1][g] + tables[2][b]``. Blender converts a small image of probe colours in
+    ``img``'s colour space (:func:`_byte_image_linear`, as the whole photo would be); where the sum does not give
+    back its colours (a display transform that mixes the channels), None: the photo is converted whole.
+    """
+    import bpy
+
+    codes = _probe_codes()
+    probe = bpy.data.images.new("delight colour probe", codes.shape[1], codes.shape[0], alpha=True)
+    try:
+        probe.colorspace_settings.name = img.colorspace_settings.name
+        rgba = np.concatenate([codes, np.full((*codes.shape[:2], 1), 255, np.uint8)], axis=2)
+        probe.pixels.foreach_set((rgba[::-1] / np.float32(255)).astype(np.float32).ravel())
+        out = _byte_image_linear(probe, opaque=True).reshape(-1, 3).astype(np.float64)
+    finally:
+        bpy.data.images.remove(probe)
+    black = out[0]
+    tables = np.stack([out[:256], out[256:512] - black, out[512:768] - black])
+    flat = codes.reshape(-1, 3)
+    summed = tables[0][flat[:, 0]] + tables[1][flat[:, 1]] + tables[2][flat[:, 2]]
+    if not np.isfinite(out).all() or np.abs(summed - out).max() > 1e-6 * max(1.0, float(np.abs(out).max())):
+        return None
+    return tables.astype(np.float32)
+
+
+# Rows converted at a time from codes to colours: the codes stay in cache.
+_TABLE_ROWS = 64
+
+
+def _linear_from_codes(px, tables):
+    """An 8-bit image's colours by ``tables`` (:func:`_code_tables`), and its clipped pixels.
+
+    ``px``: its ``Image.pixels``, ``(H, W, C)`` codes / 255. Returns ``(H, W, 3)`` float32 and ``(H, W)`` bool
+    (:func:`core.io.photos.clipped_pixels`).
+    """
+    h, w, ch = px.shape
+    out = np.empty((h, w, 3), np.float32)
+    clipped = np.empty((h, w), bool)
+    channels = slice(0, 3) if ch >= 3 else [0, 0, 0]  # grey: its one channel in all three
+    # sRGB, Non-Color, linear Rec.709: each channel's colour depends on its own code alone, one table for all.
+    diagonal = all(np.all(tables[k][:, j] == 0) for k in range(3) for j in range(3) if j != k)
+    table = np.concatenate([tables[k][:, k] for k in range(3)])
+    offset = np.array([0, 256, 512], np.uint16)
+    for r0 in range(0, h, _TABLE_ROWS):
+        rows = slice(r0, r0 + _TABLE_ROWS)
+        code = (px[rows, :, channels] * np.float32(255) + np.float32(0.5)).astype(np.uint16)  # exact: c / 255
+        clipped[rows] = clipped_pixels(code)
+        if diagonal:
+            code += offset
+            np.take(table, code, out=out[rows])
+        else:
+            out[rows] = tables[0][code[..., 0]] + tables[1][code[..., 1]] + tables[2][code[..., 2]]
+    return out, clipped
+
+
+def read_pixels(img, camera_name, label=None, info=None):
+    """Read a ``bpy.types.Image`` (on the main thread); the rest is left to a callable that any thread may run.
+
+    Returns ``(finish, (W, H))``: ``finish()`` gives the image as ``(H, W, 3)`` float32 linear, row 0 at the
+    top (and fills ``info``'s ``"clipped"``). Blender's part, here, is decoding the file and, for an 8-bit
+    image, how its colour space converts codes (:func:`_code_tables`); the pixels' conversion is NumPy's.
+
+    ``label`` names the photo in messages (default: the image's name and file). ``info`` (a dict), if given,
+    receives ``"float"``: whether the image is stored as floats, and for 8-bit images ``"clipped"``: the
+    (H, W) pixels with a channel at or above :data:`core.io.photos.CLIP_CODE`.
 
     Raises
     ------
     DelightError
-        The image has no pixels (missing or unreadable file), or a float
-        image holds NaN or infinite values.
+        The image has no pixels (missing or unreadable file), or (from ``finish``) a float image holds NaN
+        or infinite values.
     """
     label = label or f"{img.name!r} ({_image_path(img)})"
     was_loaded = img.has_data
@@ -107,32 +180,47 @@ def image_pixels(img, camera_name, label=None, info=None):
             raise DelightError(f"camera {camera_name!r}: cannot read its photo {label} (missing or unreadable file)")
         ch = img.channels
         is_float = img.is_float
-        rgb = None
+        rgb = tables = None
         if info is not None:
             info["float"] = bool(is_float)
         flat = np.empty(w * h * ch, dtype=np.float32)
         img.pixels.foreach_get(flat)
         if not is_float:
             opaque = ch not in (2, 4) or bool(np.all(flat[ch - 1 :: ch] == 1.0))  # alpha, the last, all 255
-            rgb = _byte_image_linear(img, opaque)
-            if info is not None:  # clipping is judged on the codes, whatever the colour space
-                codes = flat.reshape(h, w, ch)[::-1, :, : min(ch, 3)]
-                info["clipped"] = clipped_pixels(codes)
+            # With alpha, Blender's conversion premultiplies and the colour is divided back: the whole photo.
+            tables = _code_tables(img) if opaque else None
+            if tables is None:
+                rgb = _byte_image_linear(img, opaque)
     finally:
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
-    if rgb is not None:
-        return rgb
-    px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
-    if ch >= 3:
-        rgb = px[:, :, :3]
-    else:  # grey (+ alpha)
-        rgb = np.repeat(px[:, :, :1], 3, axis=2)
-    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
-    if not np.isfinite(rgb).all():  # one pass over the photo; the pixels are counted only to say how many
-        bad = int((~np.isfinite(rgb).all(axis=2)).sum())
-        raise DelightError(f"camera {camera_name!r}: its photo {label} has {bad} NaN or infinite pixels")
-    return rgb
+
+    def finish():
+        px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
+        if not is_float:
+            if rgb is None:
+                out, clipped = _linear_from_codes(px, tables)
+            else:
+                out, clipped = rgb, clipped_pixels(px[:, :, : min(ch, 3)])
+            if info is not None:  # clipping is judged on the codes, whatever the colour space
+                info["clipped"] = clipped
+            return out
+        if ch >= 3:
+            out = px[:, :, :3]
+        else:  # grey (+ alpha)
+            out = np.repeat(px[:, :, :1], 3, axis=2)
+        out = np.ascontiguousarray(out, dtype=np.float32)
+        if not np.isfinite(out).all():  # one pass over the photo; the pixels are counted only to say how many
+            bad = int((~np.isfinite(out).all(axis=2)).sum())
+            raise DelightError(f"camera {camera_name!r}: its photo {label} has {bad} NaN or infinite pixels")
+        return out
+
+    return finish, (w, h)
+
+
+def image_pixels(img, camera_name, label=None, info=None):
+    """Read a ``bpy.types.Image`` as ``(H, W, 3)`` float32 linear, row 0 at the top (:func:`read_pixels`)."""
+    return read_pixels(img, camera_name, label, info)[0]()
 
 
 def _sequence_frame_path(scene, bg):
@@ -241,20 +329,22 @@ def _load_file(path, camera_name, check_existing=True, info=None):
     except RuntimeError as exc:
         raise DelightError(f"camera {camera_name!r}: cannot read its photo {path}: {exc}") from None
     try:
-        return image_pixels(img, camera_name, label=path, info=info)
+        return read_pixels(img, camera_name, label=path, info=info)
     finally:
         if img not in before:
             bpy.data.images.remove(img)
 
 
 def find_photo(scene, cam_obj, images_dir=None, info=None):
-    """The camera's photo as ``(H, W, 3)`` float32 linear, and where it came from.
+    """The camera's photo, read (:func:`read_pixels`), and where it came from.
 
-    ``info`` (a dict), if given, receives ``"float"`` and ``"clipped"`` (see :func:`image_pixels`).
+    ``info`` (a dict), if given, receives ``"float"`` and ``"clipped"`` (see :func:`read_pixels`).
 
     Returns
     -------
-    photo : ndarray
+    finish : callable() -> (H, W, 3) float32 array
+        The photo, linear, row 0 at the top; any thread may call it.
+    size : (W, H)
     source : str
         ``"background image 'name'"``, ``"image plane 'obj' (image 'name')"``
         or the file path.
@@ -266,17 +356,14 @@ def find_photo(scene, cam_obj, images_dir=None, info=None):
     """
     img = _from_background(scene, cam_obj)
     if isinstance(img, str):
-        return (
-            _load_file(img, cam_obj.name, check_existing=False, info=info),
-            f"background image sequence frame {img}",
-        )
+        frame = f"background image sequence frame {img}"
+        return (*_load_file(img, cam_obj.name, check_existing=False, info=info), frame)
     if img is not None:
-        return image_pixels(img, cam_obj.name, info=info), f"background image {img.name!r}"
+        return (*read_pixels(img, cam_obj.name, info=info), f"background image {img.name!r}")
     img = _from_image_plane(scene, cam_obj)
     if img is not None:
-        return image_pixels(
-            img, cam_obj.name, info=info
-        ), f"image plane {_plane_names(cam_obj.name)[0]!r} (image {img.name!r})"
+        plane = f"image plane {_plane_names(cam_obj.name)[0]!r} (image {img.name!r})"
+        return (*read_pixels(img, cam_obj.name, info=info), plane)
     looked = ["its background images", f"an image plane object {' or '.join(map(repr, _plane_names(cam_obj.name)))}"]
     if images_dir:
         import bpy
@@ -286,7 +373,7 @@ def find_photo(scene, cam_obj, images_dir=None, info=None):
             raise DelightError(f"images folder {folder} does not exist")
         path = _from_folder(folder, cam_obj.name)
         if path is not None:
-            return _load_file(path, cam_obj.name, info=info), path
+            return (*_load_file(path, cam_obj.name, info=info), path)
         looked.append(f"files named {' or '.join(map(repr, _stems(cam_obj.name)))} + an image extension in {folder}")
     else:
         looked.append("an images folder (none given)")

@@ -179,6 +179,7 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         selected_only=options.selected_only,
         keep_full=photos.put if photos is not None else None,
         progress=stage_progress(progress, "gather"),
+        threads=options.threads,
     )
     # The bar's spans, now that the photos tell how long the stages will take.
     stages = schedule(options, inputs)

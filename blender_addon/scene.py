@@ -6,15 +6,23 @@ the rest of the run can happen off the main thread.
 
 from __future__ import annotations
 
+import collections
+from concurrent.futures import wait
+
 import numpy as np
 
 from . import photos as _photos
 from .camera import to_core_camera
 from .core.errors import DelightError
-from .core.io.photos import downscale
+from .core.io.photos import downscale, working_size
+from .core.parallel import resolve_threads, start
 from .core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 
-__all__ = ["gather", "mesh_arrays", "target_object"]
+__all__ = ["gather", "mesh_arrays", "target_object", "PHOTOS_AT_WORK"]
+
+#: Photos converted and downscaled at once while the next is read: each holds its pixels twice over (a 24 MP
+#: photo about 0.7 GB), and with two the main thread's reading is no longer what waits.
+PHOTOS_AT_WORK = 2
 
 
 def _scene_and_view_layer(context_or_scene):
@@ -234,6 +242,7 @@ def gather(
     selected_only=False,
     keep_full=None,
     progress=None,
+    threads=None,
 ) -> SceneInputs:
     """Read the mesh, the cameras and their photos from the scene.
 
@@ -258,6 +267,9 @@ def gather(
         it the full-resolution photos are let go.
     progress : callable(fraction, message), optional
         Called before each photo is read.
+    threads : int or None
+        1: every photo read and converted on the calling thread in turn; else (None: as
+        :func:`core.parallel.resolve_threads`) each photo's conversion beside the reading of the next.
 
     Returns
     -------
@@ -288,36 +300,73 @@ def gather(
     depsgraph = _depsgraph(scene, view_layer)
     mesh = mesh_arrays(obj, depsgraph)
     views, errors = [], []
-    for i, cam in enumerate(cams):
-        if progress is not None:
-            progress(i / len(cams), f"reading the photo of {cam.name} ({i + 1}/{len(cams)})")
+
+    def unusable(cam, exc):
+        if not all_cameras:
+            raise exc
+        errors.append(exc)
+        skipped.append(f"skipped camera {cam.name!r}: {exc}")
+
+    # Blender reads each photo here, on the main thread, while threads of their own convert, downscale and keep
+    # the ones before (NumPy's work): at most PHOTOS_AT_WORK photos at work, and one being read.
+    at_work = collections.deque()  # (camera, the Future of its ViewInput), in the cameras' order
+    room = min(resolve_threads(threads), PHOTOS_AT_WORK)
+
+    def settle():
+        cam, job = at_work.popleft()
         try:
-            views.append(_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full))
+            views.append(job.result())
         except DelightError as exc:
-            if not all_cameras:
-                raise
-            errors.append(exc)
-            skipped.append(f"skipped camera {cam.name!r}: {exc}")
+            unusable(cam, exc)
+
+    try:
+        for i, cam in enumerate(cams):
+            if progress is not None:
+                progress(i / len(cams), f"reading the photo of {cam.name} ({i + 1}/{len(cams)})")
+            try:
+                make = _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full)
+            except DelightError as exc:
+                while at_work:  # the views stay in the cameras' order
+                    settle()
+                unusable(cam, exc)
+                continue
+            while len(at_work) >= room:
+                settle()
+            at_work.append((cam, start(make, threads=room)))
+        while at_work:
+            settle()
+    finally:
+        wait([job for _, job in at_work])  # stopped early: no thread left at work
     # With "all cameras", an unusable camera is left out as long as two others remain.
     if errors and len(views) < 2:
         raise errors[0]
     return SceneInputs(object_name=obj.name, mesh=mesh, views=views, skipped=skipped)
 
 
-def _view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None):
+def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None):
+    """Blender's part of a view (main thread): its photo read and its cameras; returns ``make() -> ViewInput``.
+
+    ``make`` is the NumPy part, for any thread: the photo converted, downscaled to the working resolution and, if
+    downscaled, kept at its full resolution by ``keep_full``.
+    """
     info = {}
-    photo, source = _photos.find_photo(scene, cam, images_dir, info)
-    h, w = photo.shape[:2]
-    small, scale = downscale(photo, working_res_mp)
-    clipped = info.get("clipped")
-    full_clipped = clipped
-    if clipped is not None and scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
-        clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
+    finish, (w, h), source = _photos.find_photo(scene, cam, images_dir, info)
+    h2, w2 = working_size(h, w, working_res_mp)
+    scale = (w2 / w, h2 / h) if (h2, w2) != (h, w) else (1.0, 1.0)
     matrix = cam.evaluated_get(depsgraph).matrix_world
     camera = to_core_camera(cam, scene, w, h, matrix_world=matrix, scale=scale)
-    full = None
-    if keep_full is not None and scale != (1.0, 1.0):
-        full = FullPhoto(
-            camera=to_core_camera(cam, scene, w, h, matrix_world=matrix), load=keep_full(photo, full_clipped)
-        )
-    return ViewInput(name=cam.name, camera=camera, photo=small, source=source, clipped=clipped, full=full)
+    full_camera = to_core_camera(cam, scene, w, h, matrix_world=matrix) if scale != (1.0, 1.0) else None
+    name = cam.name
+
+    def make():
+        photo = finish()
+        small = downscale(photo, working_res_mp)[0]
+        clipped = full_clipped = info.get("clipped")
+        if clipped is not None and full_camera is not None:  # a working pixel is clipped if any photo pixel in it is
+            clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
+        full = None
+        if keep_full is not None and full_camera is not None:
+            full = FullPhoto(camera=full_camera, load=keep_full(photo, full_clipped))
+        return ViewInput(name=name, camera=camera, photo=small, source=source, clipped=clipped, full=full)
+
+    return make

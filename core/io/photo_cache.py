@@ -16,6 +16,7 @@ import os
 import shutil
 import socket
 import tempfile
+import threading
 import time
 import weakref
 
@@ -74,6 +75,14 @@ def remove_stale(parent) -> list:
     return removed
 
 
+def _half(photo, rows=256):
+    """``photo`` as float16, clipped to its range, a few rows at a time (no full-size float32 temporary)."""
+    out = np.empty(photo.shape, np.float16)
+    for r0 in range(0, photo.shape[0], rows):
+        out[r0 : r0 + rows] = np.clip(photo[r0 : r0 + rows], -_HALF_MAX, _HALF_MAX)
+    return out
+
+
 def _load(path, clipped_path):
     photo = np.load(path).astype(np.float32)
     return photo, (np.load(clipped_path) if clipped_path else None)
@@ -106,6 +115,7 @@ class PhotoCache:
         self.count = 0
         self.bytes = 0
         self._finalizer = None
+        self._lock = threading.Lock()  # put may be called from several threads at once
 
     def _open(self):
         check_writable(self.parent)
@@ -132,27 +142,29 @@ class PhotoCache:
         DelightError
             Too little room on the disk for the copy, or it could not be written.
         """
-        if self.folder is None:
-            self._open()
         need = photo.size * 2 + (clipped.size if clipped is not None else 0)
-        free = shutil.disk_usage(self.folder).free
-        if need + _SPARE_BYTES > free:
-            raise DelightError(
-                f"too little room in {self.parent} for the full-resolution photos' temporary copies "
-                f"({self.bytes / 1e6:.0f} MB kept, {free / 1e6:.0f} MB free, {need / 1e6:.0f} MB more needed): "
-                "free some space, choose another output folder, or turn off Full-resolution detail"
-            )
-        path = os.path.join(self.folder, f"{self.count}.npy")
+        with self._lock:  # the folder made once, each copy its own number and room
+            if self.folder is None:
+                self._open()
+            free = shutil.disk_usage(self.folder).free
+            if need + _SPARE_BYTES > free:
+                raise DelightError(
+                    f"too little room in {self.parent} for the full-resolution photos' temporary copies "
+                    f"({self.bytes / 1e6:.0f} MB kept, {free / 1e6:.0f} MB free, {need / 1e6:.0f} MB more needed): "
+                    "free some space, choose another output folder, or turn off Full-resolution detail"
+                )
+            number = self.count
+            self.count += 1
+            self.bytes += need
+        path = os.path.join(self.folder, f"{number}.npy")
         clipped_path = None
         try:
-            np.save(path, np.clip(photo, -_HALF_MAX, _HALF_MAX).astype(np.float16))
+            np.save(path, _half(photo))
             if clipped is not None:
-                clipped_path = os.path.join(self.folder, f"{self.count}_clipped.npy")
+                clipped_path = os.path.join(self.folder, f"{number}_clipped.npy")
                 np.save(clipped_path, np.asarray(clipped, bool))
         except OSError as exc:
             raise DelightError(f"cannot keep a full-resolution photo in {self.folder}: {exc}") from None
-        self.count += 1
-        self.bytes += need
         return functools.partial(_load, path, clipped_path)
 
     def close(self):

@@ -24,7 +24,7 @@ from conftest import (
 from blender_addon.core.errors import DelightError
 from blender_addon.core.geometry.bake import bake_views
 from blender_addon.core.io.photos import downscale, srgb_to_linear
-from blender_addon.photos import _byte_image_linear
+from blender_addon.photos import _byte_image_linear, _code_tables, image_pixels
 from blender_addon.scene import gather
 from core.io.exr import write_exr
 
@@ -205,6 +205,44 @@ def test_an_opaque_photo_is_converted_without_its_alpha_to_the_same_colours(tmp_
         np.testing.assert_allclose(rgb, srgb_to_linear(codes / 255.0), rtol=1e-4, atol=1e-5)
     finally:
         bpy.data.images.remove(img)
+
+
+@pytest.mark.parametrize(
+    "space", ["sRGB", "Non-Color", "Linear Rec.2020", "ACEScg", "Filmic Log", "Khronos PBR Neutral sRGB"]
+)
+def test_an_8bit_photo_gets_the_colours_of_blenders_conversion_of_the_whole_photo(tmp_path, space):
+    # Each code's colour comes from a small probe image that Blender converts; the photo's pixels must be those
+    # Blender gives the whole photo, in a colour space with a curve per channel, a matrix, a log curve, and one
+    # that mixes the channels (which tables cannot follow: converted whole).
+    codes = np.random.default_rng(5).integers(0, 256, (30, 44, 3)).astype(np.uint8)
+    codes[4, 5] = (255, 252, 3)
+    img = bpy.data.images.load(write_png(str(tmp_path / "c.png"), codes))
+    try:
+        img.colorspace_settings.name = space
+        whole = _byte_image_linear(img, opaque=True)
+        info = {}
+        got = image_pixels(img, "cam", info=info)
+        assert got.shape == whole.shape and got.dtype == np.float32
+        np.testing.assert_allclose(got, whole, rtol=0, atol=1e-6 * max(1.0, float(np.abs(whole).max())))
+        assert info["clipped"].tolist() == np.any(codes >= 250, axis=2).tolist()
+        assert (_code_tables(img) is None) == (space == "Khronos PBR Neutral sRGB")
+    finally:
+        bpy.data.images.remove(img)
+
+
+def test_photos_read_beside_their_conversion_give_the_same_views(tmp_path):
+    # The conversions run on threads of their own while the next photo is read: the views, their order and the
+    # camera skipped for its NaN pixels must be those of reading one photo after the other.
+    s = build_scene(str(tmp_path), n_cameras=5, size=(40, 30), photo="dir", kind="exr")
+    bad = synth_photo(40, 30)
+    bad[3, 4, 1] = np.nan
+    write_exr(str(tmp_path / "view2.exr"), bad)
+    one, two = (gather(s.scene, images_dir=str(tmp_path), working_res_mp=0.0004, threads=t) for t in (1, 2))
+    assert [v.name for v in one.views] == [v.name for v in two.views] == [f"view{i}_cam" for i in (0, 1, 3, 4)]
+    assert one.skipped == two.skipped and len(one.skipped) == 1 and "NaN" in one.skipped[0]
+    for a, b in zip(one.views, two.views):
+        assert a.photo.shape == (17, 23, 3) and np.array_equal(a.photo, b.photo)
+        assert np.array_equal(a.camera.K, b.camera.K)
 
 
 def test_float_photo_has_no_clipped_pixels(tmp_path):
