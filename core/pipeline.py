@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .geometry.raycast import Triangles
 from .geometry.texels import texture_layout
 from .memory import peak_mb
 from .options import OPTIONS, Options
@@ -267,14 +268,14 @@ def _transfer(bakes, masks, cells, sun, threads=None) -> list:
     return transfer
 
 
-def _occlusion(inputs, bakes, opt, progress):
+def _occlusion(occluders, bakes, opt, progress):
     """The occlusion transfer on its UV grid (:func:`core.geometry.transfer.occlusion_grid`), and its seconds."""
     from .geometry.transfer import occlusion_grid
 
     progress(0.0, "occlusion")
     t = time.perf_counter()
     cells = occlusion_grid(
-        inputs.mesh.tri_pos,
+        occluders,
         [b.uv for b in bakes],
         [b.mask for b in bakes],
         [b.normal for b in bakes],
@@ -305,7 +306,7 @@ def _lighting_choice(problem, opt, progress):
     return lam, variation, lighting
 
 
-def _find_sun(photos, masks, inputs, bakes, lighting, opt, progress):
+def _find_sun(photos, masks, occluders, bakes, lighting, opt, progress):
     """The sun, found from the photos (option ``sun``), whose term becomes the transfer's last column.
 
     Returns the :class:`core.geometry.sun.SunLight` (None when not used) and a summary for the report. A light
@@ -325,14 +326,14 @@ def _find_sun(photos, masks, inputs, bakes, lighting, opt, progress):
             masks,
             [b.position for b in bakes],
             [b.normal for b in bakes],
-            inputs.mesh.tri_pos,
+            occluders,
             threads=opt.threads,
             **SUN_SEARCH,
         )
     except SunNotFound as e:  # too few pixels to tell where it is: solve without it, and say so
         progress(0.0, f"sun shadows: off, {e}")
         return None, {"used": False, "reason": str(e)}
-    sun = SunLight(found.direction, inputs.mesh.tri_pos)
+    sun = SunLight(found.direction, occluders)
     info = {
         "used": True,
         "direction": [float(x) for x in found.direction],
@@ -448,8 +449,12 @@ def compute(
             )
             check_cancel(cancel)
         cells = sun = sun_info = None
+        # The shadow casters as shared vertices: each cast projects a vertex once, not once per triangle.
+        occluders = None
+        if opt.method != "project" and (opt.occlusion or opt.sun):
+            occluders = Triangles.of(inputs.mesh.tri_pos, inputs.mesh.tri_vert)
         if opt.occlusion and opt.method != "project":
-            cells, occlusion_s = _occlusion(inputs, bakes, opt, sub_progress(solve_progress, *parts["occlusion"]))
+            cells, occlusion_s = _occlusion(occluders, bakes, opt, sub_progress(solve_progress, *parts["occlusion"]))
             peaks["occlusion"] = peak_mb()
             check_cancel(cancel)
         problem = Problem(
@@ -469,7 +474,7 @@ def compute(
             lam, variation, lighting = _lighting_choice(problem, opt, problem_progress)
             if opt.sun:
                 # On every pixel, not the lighting stage's thinned ones: the search compares neighbouring pixels.
-                sun, sun_info = _find_sun(photos, solve_masks, inputs, bakes, lighting, opt, problem_progress)
+                sun, sun_info = _find_sun(photos, solve_masks, occluders, bakes, lighting, opt, problem_progress)
                 check_cancel(cancel)
         layout = layout_job.result()
     check_cancel(cancel)

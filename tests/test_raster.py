@@ -3,7 +3,7 @@
 import numpy as np
 
 from core.geometry.camera import Camera
-from core.geometry.raycast import raycast
+from core.geometry.raycast import Triangles, raycast
 
 
 def camera(R=None, eye=(0.0, 0.0, 0.0), w=40, h=30, f=25.0, skew=0.0):
@@ -128,3 +128,28 @@ def test_a_mesh_finer_than_the_pixels_is_hit_where_rays_meet_it():
     assert edge.mean() < 0.01
     np.testing.assert_allclose(hits.depth[best >= 0], depth[best >= 0], rtol=1e-9)
     assert np.array_equal(hits.mask, best >= 0)
+
+
+def test_triangles_as_shared_vertices_give_the_same_hits():
+    # The same bumpy sheet with its corners shared: each vertex projected once, and the same hits to the bit,
+    # seen from afar (every corner in front) and from a camera that has part of the sheet behind it.
+    n = 60
+    xs = np.linspace(-2.4, 2.4, n + 1)
+    x, y = np.meshgrid(xs, xs)
+    p = np.stack([x, y, 4.0 + 0.15 * np.sin(7 * x) * np.cos(5 * y)], axis=-1).reshape(-1, 3)
+    i = np.arange(p.shape[0]).reshape(n + 1, n + 1)
+    a, b, c, d = i[:-1, :-1], i[:-1, 1:], i[1:, 1:], i[1:, :-1]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    faces = faces[np.random.default_rng(4).permutation(len(faces))]
+    tris = p[faces]
+    shared = Triangles.of(tris, faces + 7)  # any vertex numbers: only which corners are one vertex counts
+    assert len(shared.vertices) == len(p) and np.array_equal(shared.tri_pos, tris)
+    tilted = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # looking along the sheet
+    for cam in (camera(skew=0.4), camera(tilted, eye=(0.0, -1.0, 4.1))):
+        ours, soup = raycast(cam, shared, batch=700), raycast(cam, tris, batch=700)
+        assert ours.mask.mean() > 0.2
+        for got, expect in zip((ours.tri, ours.depth, ours.bary), (soup.tri, soup.depth, soup.bary)):
+            assert np.array_equal(got, expect)
+    # Vertex numbers that do not match the corners: nothing shared, the same triangles.
+    wrong = Triangles.of(tris, np.zeros_like(faces))
+    assert len(wrong.vertices) == 3 * len(tris) and np.array_equal(wrong.tri_pos, tris)

@@ -108,7 +108,7 @@ def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
     sun, info = _find_sun(
         photos,
         apart,
-        SimpleNamespace(mesh=SimpleNamespace(tri_pos=scene)),
+        scene,
         [SimpleNamespace(position=p, normal=n) for p, n in zip(positions, normals)],
         "coupled",
         SimpleNamespace(threads=1),

@@ -16,6 +16,11 @@ it works triangle by triangle like a z-buffer rasteriser:
 
 Both faces of a triangle are hit (as in Cycles), and no clipping distance
 applies: a photo sees everything in front of the lens.
+
+A mesh given as :class:`Triangles` (its corners as shared vertices) has each
+vertex moved to camera space and projected once, not once per triangle that
+shares it: on a mesh finer than the pixels (a shadow map of a scan), that is
+most of the work.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RayHits", "raycast", "nan_min_max"]
+__all__ = ["RayHits", "Triangles", "raycast", "nan_min_max"]
 
 # Inclusive edge test with a tiny tolerance so that a pixel centre exactly on a
 # shared edge is not lost to rounding in both triangles.
@@ -70,6 +75,55 @@ class RayHits:
         b = self.bary[m]
         out[m] = np.einsum("nc,nck->nk", b, vals[tri])
         return out
+
+
+@dataclass
+class Triangles:
+    """A triangle mesh as shared vertices: what :func:`raycast` takes in place of the corners ``(T, 3, 3)``.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+        World positions, each used by some triangle.
+    faces : (T, 3) intp
+        Each triangle's vertices.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    @classmethod
+    def of(cls, tri_pos, tri_vert=None) -> Triangles:
+        """The triangles ``tri_pos`` ``(T, 3, 3)`` with their corners shared as ``tri_vert`` ``(T, 3)`` says.
+
+        Where ``tri_vert`` is not given or does not match ``tri_pos`` (two corners of one index at two places),
+        every corner is a vertex of its own: the same triangles, nothing shared.
+        """
+        tri_pos = np.asarray(tri_pos, np.float64).reshape(-1, 3, 3)
+        corners = tri_pos.reshape(-1, 3)
+        if tri_vert is not None and len(corners):
+            used, faces = np.unique(np.asarray(tri_vert).ravel(), return_inverse=True)
+            vertices = np.empty((used.size, 3))
+            vertices[faces] = corners
+            if faces.size == len(corners) and np.array_equal(vertices[faces], corners):
+                return cls(vertices, faces.reshape(-1, 3).astype(np.intp))
+        return cls(corners.copy(), np.arange(len(corners), dtype=np.intp).reshape(-1, 3))
+
+    @property
+    def tri_pos(self) -> np.ndarray:
+        """``(T, 3, 3)``: each triangle's corners."""
+        return self.vertices[self.faces]
+
+    def __len__(self):
+        return len(self.faces)
+
+
+def _vertex_bounds(vv, faces):
+    """:func:`_bounds` of triangles ``faces`` over camera-space vertices ``vv`` that are all in front."""
+    z = vv[:, 2]
+    px, py = vv[:, 0] / z, vv[:, 1] / z  # as _bounds divides each corner
+    (xmin, xmax), (ymin, ymax) = (nan_min_max([p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]]) for p in (px, py))
+    return xmin, xmax, ymin, ymax, np.ones(len(faces), bool)
 
 
 def _bounds(vc, z_near):
@@ -123,8 +177,8 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     ----------
     camera : core.geometry.camera.Camera
         Pinhole camera; pixel centre ``(row r, col c)`` is at ``(x, y) = (c, r)``.
-    tri_pos : (T, 3, 3) array
-        World positions of the triangles' corners.
+    tri_pos : (T, 3, 3) array or Triangles
+        World positions of the triangles' corners, or the triangles as shared vertices (the same hits).
     batch : int
         Number of (pixel, triangle) candidates tested at once; bounds memory
         (about 120 bytes per candidate).
@@ -133,19 +187,24 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     -------
     RayHits
     """
-    tri_pos = np.asarray(tri_pos, dtype=np.float64).reshape(-1, 3, 3)
+    if not isinstance(tri_pos, Triangles):
+        tri_pos = np.asarray(tri_pos, dtype=np.float64).reshape(-1, 3, 3)
     h, w = camera.height, camera.width
     depth = np.full(h * w, np.inf)
     best = np.full(h * w, -1, dtype=np.intp)
     bary = np.zeros((h * w, 3))
     if len(tri_pos):
-        vc = camera.to_camera(tri_pos)
+        shared = isinstance(tri_pos, Triangles)
+        vc = camera.to_camera(tri_pos.vertices if shared else tri_pos)
         scale = max(float(vc.max()), -float(vc.min())) or 1.0  # no abs copy over every corner
         z_near = 1e-9 * scale
+        if shared and float(vc[:, 2].min()) < z_near:  # some corner behind: each triangle clipped on its own
+            vc, shared = vc[tri_pos.faces], False
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
-        boxes = _pixel_boxes(camera, vc, z_near)
+        bounds = _vertex_bounds(vc, tri_pos.faces) if shared else _bounds(vc, z_near)
+        boxes = _pixel_boxes(camera, bounds)
         tris = np.flatnonzero(boxes[3] > 0)
-        vc = vc[tris]
+        vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
         spans = _row_spans(camera, vc, z_near, [b[tris] for b in boxes])
         if spans[0].size:
             _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary)
@@ -164,11 +223,14 @@ def _intrinsics(camera):
     return K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
 
 
-def _pixel_boxes(camera, vc, z_near):
-    """Each triangle's box of candidate pixel centres: first column c0, last c1, first row r0, row count nr."""
+def _pixel_boxes(camera, bounds):
+    """Each triangle's box of candidate pixel centres: first column c0, last c1, first row r0, row count nr.
+
+    ``bounds``: the triangles' projected bounds and which are in front (:func:`_bounds`).
+    """
     h, w = camera.height, camera.width
     fx, skew, cx, fy, cy = _intrinsics(camera)
-    xmin, xmax, ymin, ymax, keep = _bounds(vc, z_near)
+    xmin, xmax, ymin, ymax, keep = bounds
     # Normalised bounds to pixel bounds: y = fy * Y/Z + cy, x = fx * X/Z + skew * Y/Z + cx.
     # (With skew the x range needs both Y/Z extremes.)
     sk = np.stack([skew * ymin, skew * ymax])

@@ -114,7 +114,7 @@ def find_sun(
         Linear photos (C >= 1; the mean of the first three channels is used).
     masks, positions, normals : lists of (H, W), (H, W, 3), (H, W, 3) arrays
         Per photo, the pixels on the mesh and their world position and unit normal (the bake's).
-    tri_pos : (T, 3, 3) array
+    tri_pos : (T, 3, 3) array or core.geometry.raycast.Triangles
         The mesh's triangles, world space: the shadow casters.
     n_directions : int
         Candidates spread over the whole sphere (no "up" is assumed).
@@ -141,7 +141,6 @@ def find_sun(
             np.concatenate([nrm[keep], nrm[n + keep]]),
             dlog[keep],
         )
-    tri_pos = np.asarray(tri_pos, np.float64)
     dirs = sphere_directions(n_directions)
     scores = _correlations(points, nrm, dlog, tri_pos, dirs, resolution, threads)
     spacing = np.sqrt(4 * np.pi / n_directions)

@@ -34,7 +34,7 @@ import numpy as np
 from ..parallel import thread_map
 from ..solve.sh import sh_basis, sh_degree
 from .camera import Camera
-from .raycast import raycast
+from .raycast import Triangles, raycast
 from .texels import bilinear_texels, texel_index, texel_of_uv
 
 __all__ = [
@@ -94,8 +94,13 @@ def _shadow_camera(direction, centre, radius, resolution):
     return Camera(K=K, R=R, t=-R @ C, width=resolution, height=resolution), 2.04 * radius / resolution
 
 
+def _occluders(tri_pos):
+    """The mesh as the ray caster takes it: :class:`Triangles` as they are, corners ``(T, 3, 3)`` as float64."""
+    return tri_pos if isinstance(tri_pos, Triangles) else np.asarray(tri_pos, np.float64)
+
+
 def _bounding_sphere(tri_pos):
-    corners = tri_pos.reshape(-1, 3)
+    corners = tri_pos.vertices if isinstance(tri_pos, Triangles) else tri_pos.reshape(-1, 3)
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     centre = 0.5 * (lo + hi)
     return centre, float(np.linalg.norm(corners - centre, axis=1).max()) or 1.0
@@ -108,7 +113,7 @@ class ShadowMap:
     ----------
     direction : (3,) array
         Towards the light.
-    tri_pos : (T, 3, 3) array
+    tri_pos : (T, 3, 3) array or core.geometry.raycast.Triangles
         The mesh's triangles (world space): the occluders.
     resolution : int
         Side of the depth map.
@@ -121,7 +126,7 @@ class ShadowMap:
     """
 
     def __init__(self, direction, tri_pos, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, sphere=None):
-        tri_pos = np.asarray(tri_pos, np.float64)
+        tri_pos = _occluders(tri_pos)
         centre, radius = _bounding_sphere(tri_pos) if sphere is None else sphere
         self.direction = np.asarray(direction, np.float64) / np.linalg.norm(direction)
         self.camera, self.pixel = _shadow_camera(self.direction, centre, radius, resolution)
@@ -150,8 +155,8 @@ def visibility(
     ----------
     points, normals : (P, 3) arrays
         Surface points and their unit normals (world space).
-    tri_pos : (T, 3, 3) array
-        The mesh's triangles (world space): the occluders.
+    tri_pos : (T, 3, 3) array or core.geometry.raycast.Triangles
+        The mesh's triangles (world space): the occluders (as shared vertices, each cast the fastest).
     directions : (K, 3) array
         Unit directions from the points towards the light.
     resolution, lift, bias : int, float, float
@@ -166,7 +171,7 @@ def visibility(
         horizon are reported as the map sees them; callers weight by the
         clamped cosine.
     """
-    tri_pos = np.asarray(tri_pos, np.float64)
+    tri_pos = _occluders(tri_pos)
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     sphere = _bounding_sphere(tri_pos)
@@ -326,7 +331,7 @@ def pixel_transfer(
 
     Parameters
     ----------
-    tri_pos : (T, 3, 3) array
+    tri_pos : (T, 3, 3) array or core.geometry.raycast.Triangles
     views_uv, views_mask, views_normal, views_position : lists, one (H, W, ...) array per view
         The bake's UV, mask, unit normal and world position.
     views_weight : list of (H, W) arrays, optional
