@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..parallel import thread_map
-from ..solve.sh import sh_basis, sh_degree
+from ..solve.sh import sh_basis, sh_degree, sphere_directions
 from .camera import Camera
 from .raycast import Triangles, raycast
 from .texels import bilinear_texels, texel_index, texel_of_uv
@@ -62,19 +62,6 @@ def open_factor(k: int) -> np.ndarray:
     """Per coefficient, the transfer of an unoccluded point over its ``sh_basis`` value (1 up to band 2)."""
     b = sh_degree(k)
     return A_BAND[b] / _NORM_BAND[b]
-
-
-def sphere_directions(k: int, min_z: float = -1.0) -> np.ndarray:
-    """``k`` unit directions spread evenly over the sphere (a Fibonacci lattice), ``(k, 3)``.
-
-    Each stands for 4 pi / k sr; with ``min_z`` > -1 they cover the cap ``z >= min_z`` around +Z instead,
-    2 pi (1 - min_z) / k sr each.
-    """
-    i = np.arange(k) + 0.5
-    z = 1.0 - (1.0 - min_z) * i / k
-    phi = i * np.pi * (3.0 - np.sqrt(5.0))
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def _shadow_camera(direction, centre, radius, resolution):

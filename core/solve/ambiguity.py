@@ -25,13 +25,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..geometry.transfer import sphere_directions
 from ..progress import StepCounter, check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
 from .lighting import division_start, shading
 from .problem import SUN_COLUMNS
-from .sh import view_normal_equations
+from .sh import sphere_directions, view_normal_equations
 from .solver import Channel, Result, channel_threads, continued_result, stalled
 
 __all__ = ["TILT_LENGTHS", "tilt_vectors", "tilted_lighting", "tilt_search"]

@@ -1,14 +1,24 @@
 """Second-order spherical harmonics of the normal, as in the paper (eq. m).
 
 ``nu(n) = [n1, n2, n3, 1, n1 n2, n1 n3, n2 n3, n1^2 - n2^2, 3 n3^2 - 1]``.
-The shading of a point under lighting ``sigma`` (9-vector) is ``sigma . nu(n)``.
+The shading of a point under lighting ``sigma`` (9-vector) is ``sigma . nu(n)``. Integrals over the sphere
+(the occlusion's transfer, the search over tilts) are sums over :func:`sphere_directions`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sh_basis", "weighted_gram", "view_normal_equations", "sh_degree", "diffuse", "DIFFUSE", "SH_BASIS_NAMES"]
+__all__ = [
+    "sh_basis",
+    "weighted_gram",
+    "view_normal_equations",
+    "sh_degree",
+    "diffuse",
+    "sphere_directions",
+    "DIFFUSE",
+    "SH_BASIS_NAMES",
+]
 
 #: What each of the 9 coefficients multiplies, for files that record lighting (n: unit world normal).
 SH_BASIS_NAMES = ("n1", "n2", "n3", "1", "n1*n2", "n1*n3", "n2*n3", "n1^2-n2^2", "3*n3^2-1")
@@ -116,3 +126,16 @@ def view_normal_equations(nu, offsets, g, h=None, dtype=np.float64, nu_t=None):
         if h is not None:
             bs[v] = np.dot(h[lo:hi].astype(dtype, copy=False), rows)  # np.dot releases the GIL, @ does not
     return Ms, bs
+
+
+def sphere_directions(k: int, min_z: float = -1.0) -> np.ndarray:
+    """``k`` unit directions spread evenly over the sphere (a Fibonacci lattice), ``(k, 3)``.
+
+    Each stands for 4 pi / k sr; with ``min_z`` > -1 they cover the cap ``z >= min_z`` around +Z instead,
+    2 pi (1 - min_z) / k sr each.
+    """
+    i = np.arange(k) + 0.5
+    z = 1.0 - (1.0 - min_z) * i / k
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
