@@ -110,7 +110,10 @@ def _code_tables(img):
     codes = _probe_codes()
     probe = bpy.data.images.new("delight colour probe", codes.shape[1], codes.shape[0], alpha=True)
     try:
-        probe.colorspace_settings.name = img.colorspace_settings.name
+        try:
+            probe.colorspace_settings.name = img.colorspace_settings.name
+        except (TypeError, ValueError):  # a colour space the probe cannot take (not in this configuration)
+            return None
         rgba = np.concatenate([codes, np.full((*codes.shape[:2], 1), 255, np.uint8)], axis=2)
         probe.pixels.foreach_set((rgba[::-1] / np.float32(255)).astype(np.float32).ravel())
         out = _byte_image_linear(probe, opaque=True).reshape(-1, 3).astype(np.float64)
