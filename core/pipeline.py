@@ -143,8 +143,8 @@ def solve_parts(options: Options, inputs) -> dict:
         parts["problem"] = 0.1 * working
         return parts
     if options.occlusion:
-        parts["occlusion"] = 3.0 + 19.0 * triangles
-    parts["problem"] = (4.0 + 40.0 * triangles if options.sun else 0.0) + 0.17 * texels
+        parts["occlusion"] = 2.5 + 11.0 * triangles
+    parts["problem"] = (4.0 + 30.0 * triangles if options.sun else 0.0) + 0.17 * texels
     # The lighting stage's pixels are thinned beyond LIGHTING_PIXELS (on the mesh; about 11 MP of photo).
     parts["lighting"] = max(4.1 * min(working, 11.5) - 6.0, 5.0)
     if options.albedo_lam is not None and not runs_detail(options, inputs):
