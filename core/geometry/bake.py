@@ -20,7 +20,7 @@ from ..parallel import thread_map
 from ..progress import check_cancel
 from ..scene import MeshArrays
 from .camera import Camera
-from .raycast import nan_min_max, raycast
+from .raycast import at_hits, nan_min_max, raycast
 
 __all__ = ["ViewBake", "PixelBake", "bake_pixels", "bake_view", "bake_views", "bake_rows", "row_bands", "mesh_normals"]
 
@@ -99,24 +99,29 @@ def bake_pixels(camera, mesh, corner_normals=None, face_normals=None) -> PixelBa
     hits = raycast(camera, mesh.tri_pos)
     pixel = np.flatnonzero(hits.tri >= 0)
     tri = hits.tri.ravel()[pixel]
-    b = hits.bary.reshape(-1, 3)[pixel]
+    b = [np.take(hits.bary[..., c].ravel(), pixel) for c in range(3)]
     del hits
-    p = np.einsum("nc,nck->nk", b, mesh.tri_pos[tri])
-    n = np.einsum("nc,nck->nk", b, corner_normals[tri].astype(np.float64))
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    p = at_hits(b, mesh.tri_pos, tri)
+    n = at_hits(b, corner_normals, tri)
+    n /= np.maximum(np.sqrt(_dot(n, n)), 1e-30)[:, None]
     to_cam = camera.center - p
-    to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-30)
+    to_cam /= np.maximum(np.sqrt(_dot(to_cam, to_cam)), 1e-30)[:, None]
     # Cycles flips the shading normal of a back-facing hit.
-    back = np.einsum("ij,ij->i", face_normals[tri], to_cam) < 0
+    back = _dot(np.take(face_normals, tri, axis=0), to_cam) < 0
     n[back] *= -1
     return PixelBake(
         shape=(camera.height, camera.width),
         pixel=pixel,
         normal=n.astype(np.float32),
-        uv=np.einsum("nc,nck->nk", b, mesh.tri_uv[tri].astype(np.float64)).astype(np.float32),
+        uv=at_hits(b, mesh.tri_uv, tri).astype(np.float32),
         position=p.astype(np.float32),
-        view_weight=np.clip(np.einsum("ij,ij->i", n, to_cam), 0.0, 1.0).astype(np.float32),
+        view_weight=np.clip(_dot(n, to_cam), 0.0, 1.0).astype(np.float32),
     )
+
+
+def _dot(a, b):
+    """Row by row dot products of ``(P, 3)`` arrays, as ``einsum("ij,ij->i")`` sums them, over whole columns."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
 def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:

@@ -14,6 +14,11 @@ it works triangle by triangle like a z-buffer rasteriser:
    triple products ``d . (Vi x Vj)`` share the sign of ``d . N``);
 3. a depth buffer keeps the nearest hit per pixel.
 
+Triangles of many pixels each (a photo of the mesh, not a shadow map of a fine scan) are cast in passes, the
+side of the mesh that faces the camera first; a triangle of a later pass whose nearest corner lies behind every
+hit in its box of pixels is left out before step 1's spans. On a closed mesh that is most of its far side, about
+half of the candidates; the hits are the same.
+
 Both faces of a triangle are hit (as in Cycles), and no clipping distance
 applies: a photo sees everything in front of the lens.
 
@@ -29,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RayHits", "Triangles", "raycast", "nan_min_max"]
+__all__ = ["RayHits", "Triangles", "raycast", "at_hits", "nan_min_max"]
 
 # Inclusive edge test with a tiny tolerance so that a pixel centre exactly on a
 # shared edge is not lost to rounding in both triangles.
@@ -71,10 +76,25 @@ class RayHits:
         h, w = self.tri.shape
         out = np.full((h, w, vals.shape[2]), fill, dtype=np.result_type(vals.dtype, np.float32))
         m = self.mask
-        tri = self.tri[m]
-        b = self.bary[m]
-        out[m] = np.einsum("nc,nck->nk", b, vals[tri])
+        out[m] = at_hits([self.bary[..., c][m] for c in range(3)], vals, self.tri[m])
         return out
+
+
+def at_hits(weights, corner_values, tri) -> np.ndarray:
+    """Corner values ``(T, 3, k)`` at hits on triangles ``tri`` ``(P,)``: ``(P, k)`` float64.
+
+    ``weights``: the hits' barycentric weights, as three ``(P,)`` arrays. The sum is einsum's
+    ``"nc,nck->nk"`` (the same order, so the same bits), component by component over whole arrays: einsum's
+    loops over three corners and a few components are several times slower.
+    """
+    k = corner_values.shape[2]
+    out = np.empty((tri.size, k))
+    for j in range(k):
+        o = np.take(corner_values[:, 0, j], tri) * weights[0]
+        o += np.take(corner_values[:, 1, j], tri) * weights[1]
+        o += np.take(corner_values[:, 2, j], tri) * weights[2]
+        out[:, j] = o
+    return out
 
 
 @dataclass
@@ -205,16 +225,81 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
         boxes = _pixel_boxes(camera, bounds)
         tris = np.flatnonzero(boxes[3] > 0)
         vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
-        spans = _row_spans(camera, vc, z_near, [b[tris] for b in boxes])
-        if spans[0].size:
-            _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary)
-            hit = best >= 0
-            best[hit] = tris[best[hit]]
+        boxes = [b[tris] for b in boxes]
+        n_corner, vol = _edge_planes(vc)
+        z_lo = np.maximum(np.minimum(np.minimum(vc[:, 0, 2], vc[:, 1, 2]), vc[:, 2, 2]), z_near)
+        for k, sel in enumerate(_passes(vol, z_lo, boxes)):
+            if k:  # what the passes before hide is left out
+                sel = sel[~_hidden(depth.reshape(h, w), z_lo[sel], [b[sel] for b in boxes])]
+            spans = _row_spans(camera, vc[sel], z_near, [b[sel] for b in boxes])
+            if spans[0].size:
+                _nearest_hits(camera, n_corner[sel], vol[sel], tris[sel], z_near, spans, batch, depth, best, bary)
     return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+
+
+def _edge_planes(vc):
+    """Per camera-space triangle ``vc`` (T, 3, 3): the edge-plane normals ``Vj x Vk`` (one per corner) and the
+    signed volume ``V0 . (V1 x V2)``, whose sign says which side of the triangle faces the camera."""
+    v0, v1, v2 = vc[:, 0], vc[:, 1], vc[:, 2]
+    n_corner = np.empty_like(vc)
+    for k, (a, b) in enumerate(((v1, v2), (v2, v0), (v0, v1))):
+        _cross_into(a, b, n_corner[:, k])
+    return n_corner, np.einsum("ij,ij->i", v0, n_corner[:, 0])
+
+
+def _passes(vol, z_lo, boxes):
+    """The triangles in the order they are cast, as index arrays (each in the triangles' own order) or one slice.
+
+    The near half of the side of the mesh that faces the camera (the side whose nearest corners are nearer),
+    then its far half, then the other side: on a closed mesh, what the first pass hits hides most of the rest.
+    Triangles of a few pixels each (a shadow map of a fine mesh) are cast in one pass: hiding them would cost
+    about what it saves. The order decides nothing but speed (and which of two triangles at exactly the same
+    depth wins a pixel).
+    """
+    c0, c1, _, nr = boxes
+    if float(np.dot((c1 - c0 + 1).astype(np.float64), nr)) < _PASS_PIXELS * vol.size:
+        return [slice(None)]  # views, not copies
+    side = [np.flatnonzero(vol < 0), np.flatnonzero(vol >= 0)]
+    if side[0].size and side[1].size and np.median(z_lo[side[1]]) < np.median(z_lo[side[0]]):
+        side.reverse()
+    near = z_lo[side[0]] <= np.median(z_lo[side[0]]) if side[0].size else np.zeros(0, bool)
+    return [p for p in (side[0][near], side[0][~near], side[1]) if p.size]
+
+
+def _hidden(depth, z_lo, boxes):
+    """Triangles whose nearest corner (``z_lo``) lies behind every hit in their box of pixels (``boxes``, as
+    :func:`_pixel_boxes` gives them): the ray caster leaves them out, as none of their pixels could take them.
+
+    The largest depth of each tile of ``_TILE`` x ``_TILE`` pixels (inf where a pixel is not hit yet), and of
+    each 2 x 2 of those and so on up: a box is looked up at the level where it spans at most two cells each way.
+    """
+    levels = [_tile_max(depth, _TILE)]
+    while max(levels[-1].shape) > 2:
+        levels.append(_tile_max(levels[-1], 2))
+    c0, c1, r0, nr = boxes
+    x0, x1, y0, y1 = c0 // _TILE, c1 // _TILE, r0 // _TILE, (r0 + nr - 1) // _TILE
+    level = np.zeros(z_lo.size, np.intp)
+    while True:
+        wide = ((x1 >> level) - (x0 >> level) > 1) | ((y1 >> level) - (y0 >> level) > 1)
+        wide &= level < len(levels) - 1
+        if not wide.any():
+            break
+        level[wide] += 1
+    far = np.full(z_lo.size, np.inf)
+    for k in np.unique(level):
+        at, a = np.flatnonzero(level == k), levels[k]
+        xa, xb, ya, yb = x0[at] >> k, x1[at] >> k, y0[at] >> k, y1[at] >> k
+        far[at] = np.maximum(np.maximum(a[ya, xa], a[ya, xb]), np.maximum(a[yb, xa], a[yb, xb]))
+    # A hit's depth is the ratio vol / s, which may round a little below the corner's own z.
+    return z_lo > far * (1 + 1e-9)
 
 
 # Pixels of slack on the projected bounds; the exact test decides.
 _MARGIN = 1e-3
+# Pixels per side of the tiles of depth that tell which triangles are hidden (:func:`_hidden`).
+_TILE = 8
+# Candidate pixels per triangle (of its box) below which the triangles are cast in one pass (:func:`_passes`).
+_PASS_PIXELS = 4
 
 
 def _intrinsics(camera):
@@ -297,18 +382,31 @@ def _row_extent(camera, v, y):
     return nan_min_max(xs)
 
 
-def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
+def _tile_max(a, k):
+    """The largest value of each k x k tile of ``a`` (H, W), tiles at the far edges padded with inf."""
+    h, w = a.shape
+    th, tw = -(-h // k), -(-w // k)
+    padded = np.full((th * k, tw * k), np.inf)
+    padded[:h, :w] = a
+    # Slice by slice, not .max(axis=...) over a reshaped view: several times faster on short tiles.
+    rows = padded.reshape(th, k, tw * k)
+    out = rows[:, 0].copy()
+    for i in range(1, k):
+        np.maximum(out, rows[:, i], out=out)
+    cols = out.reshape(th, tw, k)
+    out = cols[:, :, 0].copy()
+    for i in range(1, k):
+        np.maximum(out, cols[:, :, i], out=out)
+    return out
+
+
+def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best, bary):
     """Test the candidates of ``spans`` exactly, about ``batch`` at a time, keeping the nearest hit per pixel.
 
+    ``n_corner`` and ``vol``: the triangles' :func:`_edge_planes`; ``ids`` their indices, which ``best`` takes.
     ``depth``, ``best`` and ``bary`` are the flat per-pixel outputs, updated in place.
     """
     pt, prow, plo, plen = spans
-    # Per triangle: the edge-plane normals Vj x Vk (one per corner) and the volume.
-    v0, v1, v2 = vc[:, 0], vc[:, 1], vc[:, 2]
-    n_corner = np.empty_like(vc)  # (T, 3, 3)
-    for k, (a, b) in enumerate(((v1, v2), (v2, v0), (v0, v1))):
-        _cross_into(a, b, n_corner[:, k])
-    vol = np.einsum("ij,ij->i", v0, n_corner[:, 0])
     cum = np.cumsum(plen)
     start = 0
     while start < pt.size:
@@ -333,7 +431,7 @@ def _nearest_hits(camera, vc, z_near, spans, batch, depth, best, bary):
         np.minimum.at(depth, pix, t)
         win = t <= depth[pix]
         sel, pix = sel[win], pix[win]  # one gather per array below, not a boolean mask twice over
-        best[pix] = tid[sel]
+        best[pix] = ids[tid[sel]]
         bary[pix] = wts[sel] / s[sel, None]
 
 
