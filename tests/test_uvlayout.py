@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from core.geometry.texels import bilinear_texels, texel_index, texel_of_uv, texture_layout, uv_of_texel
+from core.geometry.texels import (
+    bilinear_texels,
+    texel_index,
+    texel_of_uv,
+    texels_reached,
+    texture_layout,
+    uv_of_texel,
+)
 
 # ---------------------------------------------------------------- meshes
 
@@ -338,3 +345,15 @@ def test_row_spans_keep_every_texel_of_the_whole_box(monkeypatch):
         assert spans.inside.sum() > 0.3 * size * size
         assert np.array_equal(spans.texel_pos, boxes.texel_pos, equal_nan=True)
         assert np.array_equal(spans.seam_pairs, boxes.seam_pairs)
+
+
+def test_texels_reached_is_np_unique_with_its_inverse():
+    # A photo's pixels in row order reach a texture's texels in runs; random indices, one, none.
+    rng = np.random.default_rng(8)
+    rows, cols = np.divmod(np.arange(300 * 200), 200)
+    runs = ((40 + 0.7 * rows + 0.2 * cols).astype(np.int64) * 512 + (90 + 0.6 * cols).astype(np.int64))[::-1]
+    for texel in (runs, rng.integers(0, 2**40, 5000), np.array([7]), np.zeros(0, np.int64)):
+        texels, at = texels_reached(texel)
+        expect, expect_at = np.unique(texel, return_inverse=True)
+        assert np.array_equal(texels, expect) and np.array_equal(at, expect_at)
+        assert np.array_equal(texels[at], texel)

@@ -27,7 +27,7 @@ from scipy import ndimage
 from ..parallel import thread_map
 from ..progress import check_cancel
 from .bilinear import clamped_corners, interpolate
-from .texels import pixel_matched_size, texel_index
+from .texels import pixel_matched_size, texel_index, texels_reached
 
 __all__ = [
     "Alignment",
@@ -140,7 +140,7 @@ class _View:
         ok = t >= 0
         self.mask_rows, self.mask_cols, t = self.mask_rows[ok], self.mask_cols[ok], t[ok]
         # Each texel the photo reaches once, and which of them each pixel is in.
-        self.texels, self.texel_of_pixel = np.unique(t, return_inverse=True)
+        self.texels, self.texel_of_pixel = texels_reached(t)
         self.weight = np.ones(t.size) if weight is None else np.asarray(weight, np.float64)[mask][ok]
         self.weight_sum = np.bincount(self.texel_of_pixel, weights=self.weight, minlength=self.texels.size)
         # The others' texture is drawn on every pixel inside the outline, the shift measured on at most

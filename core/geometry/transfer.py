@@ -231,28 +231,30 @@ class OcclusionGrid:
         sigma = np.asarray(sigma, np.float32)
         c, n = sigma.shape[0], self.valid.shape[0]
         m = n + 2
-        grid = np.zeros((m, m, c + 1), np.float32)
-        grid[1:-1, 1:-1, :c] = (self.occ @ sigma.T).reshape(n, n, c) * self.valid[..., None]
-        grid[1:-1, 1:-1, c] = self.valid
-        grid = grid.reshape(m * m, c + 1)
+        grid = np.zeros((c + 1, m, m), np.float32)  # plane by plane: each lookup is over whole arrays
+        grid[:c, 1:-1, 1:-1] = ((self.occ @ sigma.T) * self.valid.reshape(-1, 1)).T.reshape(c, n, n)
+        grid[c, 1:-1, 1:-1] = self.valid
+        grid = grid.reshape(c + 1, m * m)
         row, col = texel_of_uv(uv, n)
         # Beyond the ring, a point takes the ring's (empty) cells.
         x, y = np.clip(col + 1, 0, m - 1), np.clip(row + 1, 0, m - 1)
         x0, y0 = np.minimum(x.astype(np.intp), m - 2), np.minimum(y.astype(np.intp), m - 2)
-        fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
+        fx, fy = (x - x0).astype(np.float32), (y - y0).astype(np.float32)
+        gx, gy = 1 - fx, 1 - fy
         at = y0 * m + x0
-        # (a (1 - fx) + b fx) (1 - fy) + (c (1 - fx) + d fx) fy, in place: the same products and sums.
-        gx, corner = 1 - fx, np.empty((at.size, c + 1), np.float32)
-        v, below = np.take(grid, at, axis=0), np.take(grid, at + m, axis=0)
-        v *= gx
-        v += np.multiply(np.take(grid, at + 1, axis=0, out=corner), fx, out=corner)
-        below *= gx
-        below += np.multiply(np.take(grid, at + m + 1, axis=0, out=corner), fx, out=corner)
-        v *= 1 - fy
-        v += np.multiply(below, fy, out=below)
+        v = np.empty((c + 1, at.size), np.float32)
+        for j, plane in enumerate(grid):  # (a (1 - fx) + b fx) (1 - fy) + (c (1 - fx) + d fx) fy
+            top = np.take(plane, at) * gx
+            top += np.take(plane, at + 1) * fx
+            below = np.take(plane, at + m) * gx
+            below += np.take(plane, at + m + 1) * fx
+            top *= gy
+            top += np.multiply(below, fy, out=below)
+            v[j] = top
         s = sh_basis(normal, order=round(k**0.5) - 1) @ (sigma * open_factor(k).astype(np.float32)).T
-        valid = v[:, c:] > 0
-        s += np.divide(v[:, :c], v[:, c:], out=np.zeros_like(s), where=valid)
+        valid = v[c] > 0
+        for j in range(c):
+            s[:, j] += np.divide(v[j], v[c], out=np.zeros(at.size, np.float32), where=valid)
         return s
 
 

@@ -36,7 +36,7 @@ import scipy.ndimage as ndi
 from ..errors import DelightError
 from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
-from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index
+from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index, texels_reached
 from ..geometry.transfer import shading_rows
 from ..parallel import resolve_threads, start, streamed, thread_map
 from ..progress import check_cancel
@@ -210,7 +210,7 @@ def _texel_sums(texel, w, q):
 
     Returns the texels (each once) and per texel the sum of w, then of w q per channel: ``(1 + C, T)``.
     """
-    texels, at = np.unique(texel, return_inverse=True)
+    texels, at = texels_reached(texel)
     sums = np.empty((1 + q.shape[1], texels.size), np.float32)
     sums[0] = np.bincount(at, w, texels.size)
     for k in range(q.shape[1]):
