@@ -84,15 +84,16 @@ def at_hits(weights, corner_values, tri) -> np.ndarray:
     """Corner values ``(T, 3, k)`` at hits on triangles ``tri`` ``(P,)``: ``(P, k)`` float64.
 
     ``weights``: the hits' barycentric weights, as three ``(P,)`` arrays. The sum is einsum's
-    ``"nc,nck->nk"`` (the same order, so the same bits), component by component over whole arrays: einsum's
+    ``"nc,nck->nk"`` (the same order, so the same bits), component by component over whole columns: einsum's
     loops over three corners and a few components are several times slower.
     """
     k = corner_values.shape[2]
+    corners = np.take(corner_values, tri, axis=0)  # row by row: a large mesh's rows are far apart in memory
     out = np.empty((tri.size, k))
     for j in range(k):
-        o = np.take(corner_values[:, 0, j], tri) * weights[0]
-        o += np.take(corner_values[:, 1, j], tri) * weights[1]
-        o += np.take(corner_values[:, 2, j], tri) * weights[2]
+        o = corners[:, 0, j] * weights[0]
+        o += corners[:, 1, j] * weights[1]
+        o += corners[:, 2, j] * weights[2]
         out[:, j] = o
     return out
 

@@ -200,6 +200,20 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
     return out
 
 
+def _all_or(keep):
+    """``keep`` (a bool mask), or a slice of everything where it keeps everything: views, not copies."""
+    return slice(None) if keep.all() else keep
+
+
+def _channel_mean(a):
+    """``np.mean(a, axis=1)`` of ``(P, C)`` float32, the same sum and division over whole columns."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        out += a[:, k]
+    out /= a.shape[1]
+    return out
+
+
 def _working_pixel(n_full, n_work):
     """For each full-resolution row (or column), the working-resolution one whose area holds its centre."""
     return np.minimum(((np.arange(n_full) + 0.5) * (n_work / n_full)).astype(np.intp), n_work - 1)
@@ -363,6 +377,7 @@ def detail_albedo(
             on_edge = outline_pixels(mask.reshape(h, width)).ravel()[b.pixel]
             edge = texel_index(b.uv[keep & on_edge], n)
             keep &= ~on_edge
+        keep = _all_or(keep)
         pixel, uv = b.pixel[keep], b.uv[keep]
         pos = None if sun is None else b.position[keep]
         values = photo[r0 : r0 + h].reshape(h * width, -1)[pixel]
@@ -370,13 +385,14 @@ def detail_albedo(
         q = values / a
         # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
         # (division_start's): dark pixels, whose quotient carries the most noise, count least.
-        w = b.view_weight[keep] * np.mean(a, axis=1) ** 2
+        w = b.view_weight[keep] * _channel_mean(a) ** 2
         if cells_of is not None:
             rr, cc = np.divmod(pixel, width)
             w = w * weights[v][cells_of[0][r0 + rr], cells_of[1][cc]]
         texel = texel_index(uv, n)
         keep = texel >= 0
         keep[keep] = inside_flat[texel[keep]]
+        keep = _all_or(keep)
         return v, h, edge, *_texel_sums(texel[keep], w[keep], q[keep])
 
     check_cancel(cancel)
