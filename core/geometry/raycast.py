@@ -87,13 +87,18 @@ def at_hits(weights, corner_values, tri) -> np.ndarray:
     ``"nc,nck->nk"`` (the same order, so the same bits), component by component over whole columns: einsum's
     loops over three corners and a few components are several times slower.
     """
-    k = corner_values.shape[2]
-    corners = np.take(corner_values, tri, axis=0)  # row by row: a large mesh's rows are far apart in memory
-    out = np.empty((tri.size, k))
-    for j in range(k):
-        o = corners[:, 0, j] * weights[0]
-        o += corners[:, 1, j] * weights[1]
-        o += corners[:, 2, j] * weights[2]
+    # A mesh larger than the hits: each hit's rows gathered at once, not its corners column by column from far
+    # apart in memory. Few triangles, each hit many times: their columns, which stay in the cache.
+    rows = np.take(corner_values, tri, axis=0) if tri.size < len(corner_values) else None
+
+    def column(c, j):
+        return rows[:, c, j] if rows is not None else np.take(corner_values[:, c, j], tri)
+
+    out = np.empty((tri.size, corner_values.shape[2]))
+    for j in range(out.shape[1]):
+        o = column(0, j) * weights[0]
+        o += column(1, j) * weights[1]
+        o += column(2, j) * weights[2]
         out[:, j] = o
     return out
 
