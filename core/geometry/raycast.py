@@ -425,7 +425,7 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
         tid = np.repeat(pt[sl], cnt)
         r = np.repeat(prow[sl], cnt)
         c = np.repeat(plo[sl], cnt) + (np.arange(n) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-        wts, s, hit = _edge_test(camera, n_corner[pt[sl]], cnt, r, c)
+        wts, s, hit = _edge_test(camera, n_corner[pt[sl]], cnt, prow[sl], c)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.repeat(vol[pt[sl]], cnt) / s
         hit &= t > z_near
@@ -438,7 +438,7 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
         win = t <= depth[pix]
         sel, pix = sel[win], pix[win]  # one gather per array below, not a boolean mask twice over
         best[pix] = ids[tid[sel]]
-        bary[pix] = wts[sel] / s[sel, None]
+        bary[pix] = (wts[:, sel] / s[sel]).T
 
 
 def _cross_into(a, b, out):
@@ -448,30 +448,34 @@ def _cross_into(a, b, out):
         out[:, k] -= a[:, j] * b[:, i]
 
 
-def _edge_test(camera, n_corner, cnt, r, c):
-    """Signed-volume test of the rays through pixels ``(r, c)`` against their triangles.
+def _edge_test(camera, n_corner, cnt, row, c):
+    """Signed-volume test of the rays through pixel centres against their triangles, run by run.
 
-    ``n_corner`` (k, 3, 3) holds each run's triangle's edge-plane normals and
-    ``cnt`` its length. Returns the unnormalised barycentric weights (n, 3),
+    ``n_corner`` (k, 3, 3) holds each run's triangle's edge-plane normals, ``cnt`` (k,) its length and ``row``
+    (k,) its row; ``c`` (n,) is each candidate's column. Returns the unnormalised barycentric weights (3, n),
     their sum, and whether the ray passes inside the triangle.
     """
     fx, skew, cx, fy, cy = _intrinsics(camera)
-    # Normalised ray directions d = (dx, dy, 1) through the pixel centres.
-    dy = (r - cy) / fy
-    dx = (c - cx - skew * dy) / fx
+    # Normalised ray directions d = (dx, dy, 1) through the pixel centres. dy, and each plane's term in it, is
+    # one number per run: worked out per run, then repeated (the same values as per candidate).
+    dy = (row - cy) / fy
+    dx = c - cx
+    if skew:
+        dx -= skew * np.repeat(dy, cnt)
+    dx /= fx
     # 1-D per-component arrays: np.repeat over sorted runs is far faster
     # than fancy-indexing an (n, 3, 3) array.
-    wts = np.empty((r.size, 3))
+    wts = np.empty((3, c.size))
     for k in range(3):
         nk = n_corner[:, k]
-        wts[:, k] = np.repeat(nk[:, 0], cnt) * dx
-        wts[:, k] += np.repeat(nk[:, 1], cnt) * dy
-        wts[:, k] += np.repeat(nk[:, 2], cnt)
-    s = wts[:, 0] + wts[:, 1]  # the order of wts.sum(axis=1), without its reduction over short rows
-    s += wts[:, 2]
+        np.multiply(np.repeat(nk[:, 0], cnt), dx, out=wts[k])
+        wts[k] += np.repeat(nk[:, 1] * dy, cnt)
+        wts[k] += np.repeat(nk[:, 2], cnt)
+    s = wts[0] + wts[1]  # the order of wts.sum(axis=0)
+    s += wts[2]
     sign = np.sign(s)
     tol = _EDGE_EPS * np.abs(s)
     hit = s != 0
     for k in range(3):
-        hit &= wts[:, k] * sign >= -tol
+        hit &= wts[k] * sign >= -tol
     return wts, s, hit
