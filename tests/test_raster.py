@@ -214,3 +214,26 @@ def test_a_triangle_is_left_out_only_behind_every_hit_in_its_box():
     z_lo = np.array([5.1, 5.0, 5.0 * (1 + 1e-6), 9.0, 5.5, 6.5])
     hidden = raycast_module._hidden(depth, z_lo, [c0, c1, r0, nr])
     assert hidden.tolist() == [True, False, True, False, False, True]
+
+
+def test_a_mesh_seen_from_one_side_is_cast_near_half_first_whichever_its_winding():
+    # A relief seen from the front (every triangle's face towards the camera): its near half, then its far half,
+    # with the winding either way round.
+    n = 20
+    xs = np.linspace(-2.0, 2.0, n + 1)
+    x, y = np.meshgrid(xs, xs)
+    p = np.stack([x, y, 6.0 + 0.5 * y + 0.2 * np.sin(3 * x)], axis=-1)
+    a, b, c, d = p[:-1, :-1], p[:-1, 1:], p[1:, 1:], p[1:, :-1]
+    sheet = np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+    cam = camera(w=80, h=60, f=60.0)
+    orders = []
+    for tris in (sheet, sheet[:, ::-1]):
+        vc = cam.to_camera(tris)
+        boxes = raycast_module._pixel_boxes(cam, raycast_module._bounds(vc, 1e-9))
+        z_lo = vc[..., 2].min(axis=1)
+        vol = raycast_module._edge_planes(vc)[1]
+        assert (vol < 0).all() or (vol > 0).all()
+        passes = raycast_module._passes(vol, z_lo, boxes)
+        assert len(passes) == 2 and z_lo[passes[0]].max() <= z_lo[passes[1]].min()
+        orders.append(passes)
+    assert all(np.array_equal(one, other) for one, other in zip(*orders))

@@ -266,8 +266,8 @@ def _passes(vol, z_lo, boxes):
     if float(np.dot((c1 - c0 + 1).astype(np.float64), nr)) < _PASS_PIXELS * vol.size:
         return [slice(None)]  # views, not copies
     side = [np.flatnonzero(vol < 0), np.flatnonzero(vol >= 0)]
-    if side[0].size and side[1].size and np.median(z_lo[side[1]]) < np.median(z_lo[side[0]]):
-        side.reverse()
+    if not side[0].size or (side[1].size and np.median(z_lo[side[1]]) < np.median(z_lo[side[0]])):
+        side.reverse()  # the side that faces the camera first, whichever sign it has (one side only: that one)
     near = z_lo[side[0]] <= np.median(z_lo[side[0]]) if side[0].size else np.zeros(0, bool)
     return [p for p in (side[0][near], side[0][~near], side[1]) if p.size]
 
