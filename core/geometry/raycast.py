@@ -422,8 +422,7 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
         start = stop
         cnt = plen[sl]
         n = int(cnt.sum())
-        tid = np.repeat(pt[sl], cnt)
-        r = np.repeat(prow[sl], cnt)
+        run = np.repeat(np.arange(cnt.size), cnt)  # each candidate's run: its row and triangle, where it hits
         c = np.repeat(plo[sl], cnt) + (np.arange(n) - np.repeat(np.cumsum(cnt) - cnt, cnt))
         wts, s, hit = _edge_test(camera, n_corner[pt[sl]], cnt, prow[sl], c)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -432,12 +431,12 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
         if not hit.any():
             continue
         sel = np.flatnonzero(hit)
-        pix = r[sel] * camera.width + c[sel]
+        pix = prow[sl][run[sel]] * camera.width + c[sel]
         t = t[sel]
         np.minimum.at(depth, pix, t)
         win = t <= depth[pix]
         sel, pix = sel[win], pix[win]  # one gather per array below, not a boolean mask twice over
-        best[pix] = ids[tid[sel]]
+        best[pix] = ids[pt[sl][run[sel]]]
         bary[pix] = (wts[:, sel] / s[sel]).T
 
 
