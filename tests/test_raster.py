@@ -175,6 +175,15 @@ def bumpy_ball(n=24, centre=(0.0, 0.0, 5.0)):
     return p, np.concatenate([f.reshape(-1, 3) for f in faces])
 
 
+def passes_of(cam, tris):
+    """The ray caster's passes over ``tris`` (all in front of ``cam``), and its signed volumes, nearest corners and
+    boxes of pixels."""
+    vc = cam.to_camera(tris)
+    boxes = raycast_module._pixel_boxes(cam, raycast_module._bounds(vc, 1e-9))
+    vol, z_lo = raycast_module._edge_planes(vc)[1], vc[..., 2].min(axis=1)
+    return raycast_module._passes(vol, z_lo, boxes), vol, z_lo, boxes
+
+
 def test_what_the_nearer_triangles_hide_is_left_out_and_the_hits_stay():
     # Triangles of many pixels each are cast nearest side first, and those behind every hit in their box are
     # left out: a closed dented ball before a wall, with its winding consistent and then flipped at random.
@@ -193,10 +202,7 @@ def test_what_the_nearer_triangles_hide_is_left_out_and_the_hits_stay():
         if not flip.any():
             # What the passes before hide of the last (the ball's far side, and the wall): about the ball's far
             # half, none of it hit by any ray. (With the winding at random, the first passes leave holes.)
-            vc = cam.to_camera(tris)
-            boxes = raycast_module._pixel_boxes(cam, raycast_module._bounds(vc, 1e-9))
-            z_lo = vc[..., 2].min(axis=1)
-            *before, last = raycast_module._passes(raycast_module._edge_planes(vc)[1], z_lo, boxes)
+            (*before, last), vol, z_lo, boxes = passes_of(cam, tris)
             seen = raycast(cam, tris[np.concatenate(before)]).depth
             hidden = last[raycast_module._hidden(seen, z_lo[last], [b[last] for b in boxes])]
             assert hidden.size > 0.3 * len(ball)
@@ -228,12 +234,8 @@ def test_a_mesh_seen_from_one_side_is_cast_near_half_first_whichever_its_winding
     cam = camera(w=80, h=60, f=60.0)
     orders = []
     for tris in (sheet, sheet[:, ::-1]):
-        vc = cam.to_camera(tris)
-        boxes = raycast_module._pixel_boxes(cam, raycast_module._bounds(vc, 1e-9))
-        z_lo = vc[..., 2].min(axis=1)
-        vol = raycast_module._edge_planes(vc)[1]
+        passes, vol, z_lo, _ = passes_of(cam, tris)
         assert (vol < 0).all() or (vol > 0).all()
-        passes = raycast_module._passes(vol, z_lo, boxes)
         assert len(passes) == 2 and z_lo[passes[0]].max() <= z_lo[passes[1]].min()
         orders.append(passes)
     assert all(np.array_equal(one, other) for one, other in zip(*orders))
