@@ -29,7 +29,7 @@ import numpy as np
 
 from .core.errors import DelightError
 from .core.io.exr import read_exr
-from .core.io.photos import clipped_pixels
+from .core.io.photos import CodedPhoto, clipped_pixels
 
 __all__ = ["EXTENSIONS", "read_pixels", "image_pixels", "find_photo"]
 
@@ -128,34 +128,23 @@ def _code_tables(img):
     return tables.astype(np.float32)
 
 
-# Rows converted at a time from codes to colours: the codes stay in cache.
-_TABLE_ROWS = 64
+# Rows of pixels turned into codes at a time: they stay in cache.
+_CODE_ROWS = 64
 
 
-def _linear_from_codes(px, tables):
-    """An 8-bit image's colours by ``tables`` (:func:`_code_tables`), and its clipped pixels.
+def _coded(px, tables):
+    """An 8-bit image as its codes and ``tables`` (:func:`_code_tables`), and its clipped pixels.
 
-    ``px``: its ``Image.pixels``, ``(H, W, C)`` codes / 255. Returns ``(H, W, 3)`` float32 and ``(H, W)`` bool
-    (:func:`core.io.photos.clipped_pixels`).
+    ``px``: its ``Image.pixels``, ``(H, W, C)`` codes / 255. Returns a :class:`core.io.photos.CodedPhoto` and
+    ``(H, W)`` bool (:func:`core.io.photos.clipped_pixels`).
     """
     h, w, ch = px.shape
-    out = np.empty((h, w, 3), np.float32)
-    clipped = np.empty((h, w), bool)
-    channels = slice(0, 3) if ch >= 3 else [0, 0, 0]  # grey: its one channel in all three
-    # sRGB, Non-Color, linear Rec.709: each channel's colour depends on its own code alone, one table for all.
-    diagonal = all(np.all(tables[k][:, j] == 0) for k in range(3) for j in range(3) if j != k)
-    table = np.concatenate([tables[k][:, k] for k in range(3)])
-    offset = np.array([0, 256, 512], np.uint16)
-    for r0 in range(0, h, _TABLE_ROWS):
-        rows = slice(r0, r0 + _TABLE_ROWS)
-        code = (px[rows, :, channels] * np.float32(255) + np.float32(0.5)).astype(np.uint16)  # exact: c / 255
-        clipped[rows] = clipped_pixels(code)
-        if diagonal:
-            code += offset
-            np.take(table, code, out=out[rows])
-        else:
-            out[rows] = tables[0][code[..., 0]] + tables[1][code[..., 1]] + tables[2][code[..., 2]]
-    return out, clipped
+    k = 3 if ch >= 3 else 1  # grey: one code for all three channels
+    codes = np.empty((h, w, k), np.uint8)
+    for r0 in range(0, h, _CODE_ROWS):
+        rows = slice(r0, r0 + _CODE_ROWS)
+        codes[rows] = px[rows, :, :k] * np.float32(255) + np.float32(0.5)  # exact: c / 255, truncated
+    return CodedPhoto(codes, tables), clipped_pixels(codes)
 
 
 def read_pixels(img, camera_name, label=None, info=None):
@@ -167,7 +156,8 @@ def read_pixels(img, camera_name, label=None, info=None):
 
     ``label`` names the photo in messages (default: the image's name and file). ``info`` (a dict), if given,
     receives ``"float"``: whether the image is stored as floats, and for 8-bit images ``"clipped"``: the
-    (H, W) pixels with a channel at or above :data:`core.io.photos.CLIP_CODE`.
+    (H, W) pixels with a channel at or above :data:`core.io.photos.CLIP_CODE`, and where tables give its
+    colours, ``"coded"``: the same photo as a :class:`core.io.photos.CodedPhoto`, a quarter of its size.
 
     Raises
     ------
@@ -202,7 +192,10 @@ def read_pixels(img, camera_name, label=None, info=None):
         px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
         if not is_float:
             if rgb is None:
-                out, clipped = _linear_from_codes(px, tables)
+                coded, clipped = _coded(px, tables)
+                out = coded.colours()
+                if info is not None:
+                    info["coded"] = coded
             else:
                 out, clipped = rgb, clipped_pixels(px[:, :, : min(ch, 3)])
             if info is not None:  # clipping is judged on the codes, whatever the colour space
@@ -341,7 +334,7 @@ def _load_file(path, camera_name, check_existing=True, info=None):
 def find_photo(scene, cam_obj, images_dir=None, info=None):
     """The camera's photo, read (:func:`read_pixels`), and where it came from.
 
-    ``info`` (a dict), if given, receives ``"float"`` and ``"clipped"`` (see :func:`read_pixels`).
+    ``info`` (a dict), if given, receives ``"float"``, ``"clipped"`` and ``"coded"`` (see :func:`read_pixels`).
 
     Returns
     -------

@@ -262,7 +262,8 @@ def gather(
     selected_only : bool
         Without ``camera_names``, take only the selected cameras.
     keep_full : callable(photo, clipped) -> load, optional
-        Called with each photo that is downscaled, at its full resolution (and its clipped pixels or None);
+        Called with each photo that is downscaled, at its full resolution (an 8-bit one as its codes, a
+        :class:`core.io.photos.CodedPhoto`, where tables give its colours) and its clipped pixels or None;
         what it returns becomes ``ViewInput.full.load`` (:class:`core.io.photo_cache.PhotoCache.put`). Without
         it the full-resolution photos are let go.
     progress : callable(fraction, message), optional
@@ -365,8 +366,9 @@ def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None
         if clipped is not None and full_camera is not None:  # a working pixel is clipped if any photo pixel in it is
             clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
         full = None
+        coded = info.pop("coded", None)  # the photo's codes: kept in place of its colours, a quarter the size
         if keep_full is not None and full_camera is not None:
-            full = FullPhoto(camera=full_camera, load=keep_full(photo, full_clipped))
+            full = FullPhoto(camera=full_camera, load=keep_full(photo if coded is None else coded, full_clipped))
         return ViewInput(name=name, camera=camera, photo=small, source=source, clipped=clipped, full=full)
 
     return make

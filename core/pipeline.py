@@ -13,6 +13,7 @@ import numpy as np
 
 from .geometry.raycast import Triangles
 from .geometry.texels import texture_layout
+from .io.photos import photo_scaled
 from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
@@ -221,7 +222,7 @@ def _with_gains(inputs, gains):
 
         def load():
             photo, clipped = full.load()
-            return photo * gains, clipped
+            return photo_scaled(photo, gains), clipped
 
         return FullPhoto(camera=full.camera, load=load)
 

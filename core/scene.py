@@ -42,7 +42,8 @@ class FullPhoto:
     """A photo at its own resolution, larger than the working one, read only when the detail stage needs it."""
 
     camera: object  # core.geometry.camera.Camera on the full-resolution pixel grid
-    # () -> (photo (H, W, 3) float32 linear, row 0 at the top; clipped (H, W) bool or None), read anew on each call
+    # () -> (photo, clipped), read anew on each call: the photo (H, W, 3) float32 linear, row 0 at the top, or an
+    # 8-bit one as its codes (core.io.photos.CodedPhoto); clipped (H, W) bool or None
     load: Callable
 
 

@@ -9,6 +9,7 @@ import pytest
 from core.errors import DelightError
 from core.io import photo_cache
 from core.io.photo_cache import PREFIX, PhotoCache
+from core.io.photos import CodedPhoto, photo_pixels, photo_scaled, srgb_to_linear
 
 
 def test_copies_read_back_as_half_floats_and_go_with_the_folders_they_made(tmp_path):
@@ -32,6 +33,48 @@ def test_copies_read_back_as_half_floats_and_go_with_the_folders_they_made(tmp_p
     cache.close()  # twice is fine
     with pytest.raises(OSError):
         load()
+
+
+def test_an_8bit_photo_is_kept_as_its_codes_and_reads_back_the_same_colours(tmp_path):
+    rng = np.random.default_rng(1)
+    tables = np.zeros((3, 256, 3), np.float32)
+    for k in range(3):  # a curve per channel and a matrix that mixes them: no channel's colour is its own alone
+        tables[k] = np.outer(srgb_to_linear(np.arange(256) / 255.0), [0.8 if j == k else 0.1 for j in range(3)])
+    codes = rng.integers(0, 256, (40, 30, 3)).astype(np.uint8)
+    clipped = np.any(codes >= 250, axis=2)
+    cache = PhotoCache(tmp_path)
+    load = cache.put(CodedPhoto(codes, tables), clipped)
+    back, back_clipped = load()
+    assert isinstance(back, CodedPhoto) and back.gains is None
+    np.testing.assert_array_equal(back.codes, codes)
+    colours = back.colours()
+    np.testing.assert_array_equal(
+        colours, tables[0][codes[..., 0]] + tables[1][codes[..., 1]] + tables[2][codes[..., 2]]
+    )
+    np.testing.assert_array_equal(back_clipped, clipped)
+    # Gains apply as the colours are read, the same numbers as the colours times the gains; a few pixels alike.
+    gains = np.array([1.5, 0.5, 0.9], np.float32)
+    np.testing.assert_array_equal(photo_scaled(back, gains).colours(), colours * gains)
+    index = np.array([0, 7, 29, 30, 299])
+    np.testing.assert_array_equal(
+        photo_pixels(back.scaled(gains), slice(3, 13), index), (colours * gains)[3:13].reshape(-1, 3)[index]
+    )
+    # A byte a channel on the disk: half of a half-float copy.
+    (folder,) = [f for f in os.listdir(tmp_path) if f.startswith(PREFIX)]
+    assert os.path.getsize(tmp_path / folder / "0.npy") < codes.size + 200
+    with pytest.raises(ValueError, match="without gains"):
+        cache.put(back.scaled(gains))
+    cache.close()
+    assert not os.listdir(tmp_path)
+
+
+def test_a_grey_photos_code_stands_for_all_three_channels():
+    tables = np.zeros((3, 256, 3), np.float32)
+    for k in range(3):
+        tables[k][:, k] = np.linspace(0, 1 + k, 256)
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1)
+    colours = CodedPhoto(codes, tables).colours()
+    np.testing.assert_array_equal(colours, np.stack([tables[k][codes[..., 0], k] for k in range(3)], axis=2))
 
 
 def test_an_existing_output_folder_and_its_files_stay(tmp_path):

@@ -3,10 +3,11 @@
 The scene is read once (decoding a photo through Blender's colour management is slow, and only the main thread
 may do it); each photo is downscaled to the working resolution for the solve, and the detail stage
 (:mod:`core.texture.detail`) reads the full-resolution copy again later, from any thread. :class:`PhotoCache`
-keeps those copies as half floats in a hidden folder ``.delight-photos-*`` inside the output folder (on the disk
-the outputs go to, which is checked for room; a system temporary folder may live in memory), and removes the
-folder when closed, when the run fails, or at the latest when the cache is collected. A run that was killed
-cannot remove its folder; the next run into the same output folder does (:func:`remove_stale`).
+keeps those copies (an 8-bit photo as its codes, any other as half floats) in a hidden folder
+``.delight-photos-*`` inside the output folder (on the disk the outputs go to, which is checked for room; a
+system temporary folder may live in memory), and removes the folder when closed, when the run fails, or at the
+latest when the cache is collected. A run that was killed cannot remove its folder; the next run into the same
+output folder does (:func:`remove_stale`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 from ..errors import DelightError
 from .outputs import check_writable
+from .photos import CodedPhoto
 
 __all__ = ["PhotoCache", "PREFIX", "remove_stale"]
 
@@ -83,8 +85,11 @@ def _half(photo, rows=256):
     return out
 
 
-def _load(path, clipped_path):
-    photo = np.load(path).astype(np.float32)
+def _load(path, clipped_path, tables_path=None):
+    if tables_path:
+        photo = CodedPhoto(np.load(path), np.load(tables_path))
+    else:
+        photo = np.load(path).astype(np.float32)
     return photo, (np.load(clipped_path) if clipped_path else None)
 
 
@@ -99,7 +104,7 @@ def _remove(folder, made):
 
 
 class PhotoCache:
-    """Photos as half-float ``.npy`` files in a hidden folder of ``parent``, each read back by a loader.
+    """Photos as ``.npy`` files (codes or half floats) in a hidden folder of ``parent``, each read back by a loader.
 
     Parameters
     ----------
@@ -135,14 +140,22 @@ class PhotoCache:
         self._finalizer = weakref.finalize(self, _remove, self.folder, made[::-1])
 
     def put(self, photo, clipped=None):
-        """Keep ``photo`` ``(H, W, C)`` (and its ``(H, W)`` clipped pixels); return ``load() -> (photo, clipped)``.
+        """Keep ``photo`` (and its ``(H, W)`` clipped pixels); return ``load() -> (photo, clipped)``.
+
+        ``photo``: ``(H, W, C)`` float32, kept as half floats, or an 8-bit photo's codes (a
+        :class:`core.io.photos.CodedPhoto`, without gains), kept and read back as they are.
 
         Raises
         ------
         DelightError
             Too little room on the disk for the copy, or it could not be written.
         """
-        need = photo.size * 2 + (clipped.size if clipped is not None else 0)
+        coded = isinstance(photo, CodedPhoto)
+        if coded and photo.gains is not None:
+            raise ValueError("PhotoCache.put: a coded photo is kept without gains")
+        need = (photo.codes.nbytes + photo.tables.nbytes if coded else photo.size * 2) + (
+            clipped.size if clipped is not None else 0
+        )
         with self._lock:  # the folder made once, each copy its own number and room
             if self.folder is None:
                 self._open()
@@ -157,15 +170,20 @@ class PhotoCache:
             self.count += 1
             self.bytes += need
         path = os.path.join(self.folder, f"{number}.npy")
-        clipped_path = None
+        clipped_path = tables_path = None
         try:
-            np.save(path, _half(photo))
+            if coded:
+                tables_path = os.path.join(self.folder, f"{number}_tables.npy")
+                np.save(path, photo.codes)
+                np.save(tables_path, photo.tables)
+            else:
+                np.save(path, _half(photo))
             if clipped is not None:
                 clipped_path = os.path.join(self.folder, f"{number}_clipped.npy")
                 np.save(clipped_path, np.asarray(clipped, bool))
         except OSError as exc:
             raise DelightError(f"cannot keep a full-resolution photo in {self.folder}: {exc}") from None
-        return functools.partial(_load, path, clipped_path)
+        return functools.partial(_load, path, clipped_path, tables_path)
 
     def close(self):
         """Remove the copies (and the folders the cache made). The loaders fail after this."""

@@ -1,11 +1,23 @@
-"""Photo pixels: the sRGB curve both ways, and area-averaged downscaling."""
+"""Photo pixels: the sRGB curve both ways, area-averaged downscaling, and 8-bit photos kept as their codes."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import sparse
 
-__all__ = ["srgb_to_linear", "linear_to_srgb", "working_size", "downscale", "clipped_pixels", "CLIP_CODE"]
+__all__ = [
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "working_size",
+    "downscale",
+    "clipped_pixels",
+    "CLIP_CODE",
+    "CodedPhoto",
+    "photo_pixels",
+    "photo_scaled",
+]
 
 #: 8-bit code from which a channel counts as clipped: JPEG ringing spreads a saturated area's 255 over
 #: nearby codes, and a pixel whose true value lay beyond the ceiling says nothing about its albedo.
@@ -81,3 +93,84 @@ def clipped_pixels(codes, code: int = CLIP_CODE) -> np.ndarray:
     for k in range(1, codes.shape[-1]):
         out |= codes[..., k] >= level
     return out
+
+
+# Rows of codes turned into colours at a time: the codes and their colours stay in cache.
+_CODE_ROWS = 64
+_CHANNEL_OFFSET = np.array([0, 256, 512], np.uint16)
+
+
+@dataclass
+class CodedPhoto:
+    """An 8-bit photo as its codes and the tables that give their linear colours: a quarter of its float32 size.
+
+    Codes ``(r, g, b)`` have the colour ``tables[0][r] + tables[1][g] + tables[2][b]`` (a colour space that is a
+    curve per channel and then a matrix), times ``gains`` per channel if set; a grey photo's one code stands for
+    all three channels. The colours are worked out where they are read, so a photo read for a few pixels at a
+    time is never held as floats.
+    """
+
+    codes: np.ndarray  # (H, W, 3) or, grey, (H, W, 1) uint8, row 0 at the top
+    tables: np.ndarray  # (3, 256, 3) float32
+    gains: np.ndarray | None = None  # (3,) float32
+    # Where each channel's colour depends on its own code alone (sRGB, Non-Color, linear Rec.709): the three
+    # channels' curves, one after the other, for one lookup of code + 256 * channel.
+    _curves: np.ndarray | None = field(init=False, repr=False, default=None)
+
+    def __post_init__(self):
+        t = self.tables
+        if all(np.all(t[k][:, j] == 0) for k in range(3) for j in range(3) if j != k):
+            self._curves = np.concatenate([t[k][:, k] for k in range(3)])
+
+    @property
+    def shape(self) -> tuple:
+        """``(H, W, 3)``, as the photo's colours."""
+        return (*self.codes.shape[:2], 3)
+
+    def scaled(self, gains) -> CodedPhoto:
+        """The photo with its colours times ``gains`` ``(3,)`` float32 (the same numbers as ``colours() * gains``)."""
+        return replace(self, gains=np.asarray(gains, np.float32))
+
+    def colours(self) -> np.ndarray:
+        """The whole photo's colours, ``(H, W, 3)`` float32."""
+        h, w = self.codes.shape[:2]
+        out = np.empty((h, w, 3), np.float32)
+        for r0 in range(0, h, _CODE_ROWS):
+            rows = slice(r0, r0 + _CODE_ROWS)
+            out[rows] = self._colours_of(self.codes[rows])
+        return out
+
+    def pixels(self, rows: slice, index) -> np.ndarray:
+        """The colours ``(P, 3)`` float32 of the pixels ``index`` (flat, row by row) of the rows ``rows``."""
+        codes = self.codes[rows]
+        return self._colours_of(codes.reshape(-1, codes.shape[-1])[index])
+
+    def _colours_of(self, codes):
+        if codes.shape[-1] == 1:
+            codes = np.repeat(codes, 3, axis=-1)
+        if self._curves is not None:
+            code = codes.astype(np.uint16)
+            code += _CHANNEL_OFFSET
+            out = np.take(self._curves, code, mode="clip")  # every index is in range; "raise" would buffer
+        else:
+            t = self.tables
+            out = t[0][codes[..., 0]] + t[1][codes[..., 1]] + t[2][codes[..., 2]]
+        if self.gains is not None:
+            out *= self.gains
+        return out
+
+
+def photo_pixels(photo, rows: slice, index) -> np.ndarray:
+    """The colours ``(P, C)`` float32 of the pixels ``index`` (flat, row by row) of a photo's rows ``rows``.
+
+    ``photo``: ``(H, W, C)`` float32, or a :class:`CodedPhoto`.
+    """
+    if isinstance(photo, CodedPhoto):
+        return photo.pixels(rows, index)
+    part = photo[rows]
+    return part.reshape(-1, part.shape[-1])[index]
+
+
+def photo_scaled(photo, gains):
+    """``photo`` (an array or a :class:`CodedPhoto`) with its colours times ``gains`` per channel."""
+    return photo.scaled(gains) if isinstance(photo, CodedPhoto) else photo * gains

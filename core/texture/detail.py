@@ -38,6 +38,7 @@ from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index, texels_reached
 from ..geometry.transfer import shading_rows
+from ..io.photos import photo_pixels
 from ..parallel import resolve_threads, start, streamed, thread_map
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
@@ -278,9 +279,9 @@ def detail_albedo(
     cameras : list of core.geometry.camera.Camera
         Each view's camera on its full-resolution pixel grid.
     load : callable(i) -> (photo, clipped)
-        View i's photo, ``(H, W, C)`` float32 linear (row 0 at the top), and its clipped pixels ``(H, W)`` bool
-        or None. Called once per view, in order, from the calling thread; the photo is let go once its bands are
-        done.
+        View i's photo, ``(H, W, C)`` float32 linear (row 0 at the top) or an 8-bit one's codes
+        (:class:`core.io.photos.CodedPhoto`), and its clipped pixels ``(H, W)`` bool or None. Called once per
+        view, in order, from the calling thread; the photo is let go once its bands are done.
     sigma : (m, C, K) array
         The solved lighting of each view (in the scale of ``base``).
     base : (N, N, C) array
@@ -380,7 +381,7 @@ def detail_albedo(
         keep = _all_or(keep)
         pixel, uv = b.pixel[keep], b.uv[keep]
         pos = None if sun is None else b.position[keep]
-        values = photo[r0 : r0 + h].reshape(h * width, -1)[pixel]
+        values = photo_pixels(photo, slice(r0, r0 + h), pixel)
         a = shading(b.normal[keep], uv, sigma[v], cells, floor, sun, pos, values)
         q = values / a
         # Weighted by the squared shading, the mean is the least-squares albedo of the pixels

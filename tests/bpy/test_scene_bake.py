@@ -23,7 +23,7 @@ from conftest import (
 
 from blender_addon.core.errors import DelightError
 from blender_addon.core.geometry.bake import bake_views
-from blender_addon.core.io.photos import downscale, srgb_to_linear
+from blender_addon.core.io.photos import CodedPhoto, downscale, srgb_to_linear
 from blender_addon.photos import _byte_image_linear, _code_tables, image_pixels
 from blender_addon.scene import gather
 from core.io.exr import write_exr
@@ -305,6 +305,31 @@ def test_working_resolution_downscales_photo_and_camera(tmp_path):
     out, scale = downscale(img, 12e-6)
     assert out.shape == (4, 3, 3) and scale == (0.5, 0.5)
     np.testing.assert_allclose(out, img.reshape(4, 2, 3, 2, 3).mean(axis=(1, 3)), atol=1e-6)
+
+
+def test_a_downscaled_8bit_photo_is_kept_as_its_codes_and_a_float_one_as_floats(tmp_path):
+    scene = set_render(300, 200)
+    bpy.context.view_layer.objects.active = add_uv_sphere()
+    cam = add_camera("k_cam", (5.0, 1.0, 0.5))
+    codes = np.random.default_rng(3).integers(0, 256, (200, 300, 3)).astype(np.uint8)
+    set_background(cam, bpy.data.images.load(write_png(str(tmp_path / "k.png"), codes)))
+    kept = []
+
+    def keep(photo, clipped):
+        kept.append((photo, clipped))
+        return lambda: (photo, clipped)
+
+    assert gather(scene, working_res_mp=0.01, keep_full=keep).views[0].full is not None
+    whole = gather(scene, working_res_mp=None).views[0]
+    photo, clipped = kept.pop()
+    assert isinstance(photo, CodedPhoto) and photo.shape == (200, 300, 3)
+    np.testing.assert_array_equal(photo.codes, codes)  # the file's codes, row 0 at the top: a byte a channel
+    np.testing.assert_array_equal(photo.colours(), whole.photo)  # the colours of the photo read whole, to the bit
+    np.testing.assert_array_equal(clipped, whole.clipped)
+    cam.data.background_images[0].image = make_image("k_float", synth_photo(300, 200))
+    gather(scene, working_res_mp=0.01, keep_full=keep)
+    photo, clipped = kept.pop()
+    assert isinstance(photo, np.ndarray) and photo.dtype == np.float32 and clipped is None
 
 
 def test_camera_selection(tmp_path):
