@@ -136,8 +136,7 @@ def test_a_mesh_finer_than_the_pixels_is_hit_where_rays_meet_it():
 
 
 def test_triangles_as_shared_vertices_give_the_same_hits():
-    # The same bumpy sheet with its corners shared: each vertex projected once, and the same hits to the bit,
-    # seen from afar (every corner in front) and from a camera that has part of the sheet behind it.
+    # The same bumpy sheet with its corners shared: each vertex projected once, and the same hits to the bit.
     n = 60
     xs = np.linspace(-2.4, 2.4, n + 1)
     x, y = np.meshgrid(xs, xs)
@@ -150,7 +149,8 @@ def test_triangles_as_shared_vertices_give_the_same_hits():
     shared = Triangles.of(tris, faces + 7)  # any vertex numbers: only which corners are one vertex counts
     assert len(shared.vertices) == len(p) and np.array_equal(shared.tri_pos, tris)
     tilted = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # looking along the sheet
-    for cam in (camera(skew=0.4), camera(tilted, eye=(0.0, -1.0, 4.1))):
+    # Every corner in front (each vertex's pixels worked out once), skewed, and part of the sheet behind.
+    for cam in (camera(), camera(skew=0.4), camera(tilted, eye=(0.0, -1.0, 4.1))):
         ours, soup = raycast(cam, shared, batch=700), raycast(cam, tris, batch=700)
         assert ours.mask.mean() > 0.2
         for got, expect in zip((ours.tri, ours.depth, ours.bary), (soup.tri, soup.depth, soup.bary)):
@@ -158,6 +158,26 @@ def test_triangles_as_shared_vertices_give_the_same_hits():
     # Vertex numbers that do not match the corners: nothing shared, the same triangles.
     wrong = Triangles.of(tris, np.zeros_like(faces))
     assert len(wrong.vertices) == 3 * len(tris) and np.array_equal(wrong.tri_pos, tris)
+
+
+def test_boxes_from_the_vertices_are_the_triangles_own():
+    # Corners on pixel centres, within the margin of one and between two: a box from its corners' own first and
+    # last pixels is the box of the triangle's projected bounds, to the pixel.
+    cam = camera(w=23, h=17)
+    rng = np.random.default_rng(5)
+    n = 3000  # triangles of about a pixel, each corner its own vertex
+    near = [0.0, 1e-3, -1e-3, 0.999e-3, -0.999e-3, 1.001e-3, 0.5, 1e-12, -1e-12]
+    col = (rng.integers(-3, 26, n)[:, None] + rng.integers(0, 2, (n, 3)) + rng.choice(near, (n, 3))).ravel()
+    row = (rng.integers(-3, 20, n)[:, None] + rng.integers(0, 2, (n, 3)) + rng.choice(near, (n, 3))).ravel()
+    z = rng.uniform(2.0, 6.0, 3 * n)
+    fx, _, cx, fy, cy = raycast_module._intrinsics(cam)
+    vv = np.stack([(col - cx) / fx * z, (row - cy) / fy * z, z], axis=1)
+    faces = np.arange(3 * n).reshape(n, 3)
+    ours = raycast_module._vertex_boxes(cam, vv, faces)
+    theirs = raycast_module._pixel_boxes(cam, raycast_module._bounds(vv[faces], 1e-9))
+    assert 0.2 < np.mean(theirs[3] > 0) < 0.95
+    for a, b in zip(ours, theirs):
+        assert np.array_equal(a, b)
 
 
 def bumpy_ball(n=24, centre=(0.0, 0.0, 5.0)):

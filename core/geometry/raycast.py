@@ -144,12 +144,28 @@ class Triangles:
         return len(self.faces)
 
 
-def _vertex_bounds(vv, faces):
-    """:func:`_bounds` of triangles ``faces`` over camera-space vertices ``vv`` that are all in front."""
+def _vertex_boxes(camera, vv, faces):
+    """:func:`_pixel_boxes` of triangles ``faces`` over camera-space vertices ``vv`` that are all in front, for a
+    camera without skew.
+
+    Each vertex's first and last pixel column and row are worked out once, and a triangle's box is their extremes
+    over its corners: the same numbers as from the triangle's projected bounds, as every step from a corner's
+    coordinate to a pixel index keeps its order. On a mesh finer than the pixels (a shadow map of a scan) this is
+    most of the cast.
+    """
+    h, w = camera.height, camera.width
+    fx, _, cx, fy, cy = _intrinsics(camera)
     z = vv[:, 2]
-    px, py = vv[:, 0] / z, vv[:, 1] / z  # as _bounds divides each corner
-    (xmin, xmax), (ymin, ymax) = (nan_min_max([p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]]) for p in (px, py))
-    return xmin, xmax, ymin, ymax, np.ones(len(faces), bool)
+    # As _bounds and _pixel_boxes work them out, with skew * Y/Z, zero, left out.
+    x = fx * (vv[:, 0] / z) + cx
+    y = fy * (vv[:, 1] / z) + cy
+    first = [np.clip(np.ceil(p - _MARGIN), 0, n).astype(np.int32) for p, n in ((x, w), (y, h))]
+    last = [np.clip(np.floor(p + _MARGIN), -1, n - 1).astype(np.int32) for p, n in ((x, w), (y, h))]
+    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    c0, r0 = (np.minimum(np.minimum(a[f0], a[f1]), a[f2]) for a in first)
+    c1, r1 = (np.maximum(np.maximum(a[f0], a[f1]), a[f2]) for a in last)
+    nr = np.where(c1 >= c0, np.maximum(r1 - r0 + 1, 0), 0)
+    return c0, c1, r0, nr
 
 
 def _bounds(vc, z_near):
@@ -224,14 +240,14 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
         vc = camera.to_camera(tri_pos.vertices if shared else tri_pos)
         scale = max(float(vc.max()), -float(vc.min())) or 1.0  # no abs copy over every corner
         z_near = 1e-9 * scale
-        if shared and float(vc[:, 2].min()) < z_near:  # some corner behind: each triangle clipped on its own
+        # Some corner behind (each triangle clipped on its own), or a skewed camera: the triangles' own corners.
+        if shared and (float(vc[:, 2].min()) < z_near or _intrinsics(camera)[1]):
             vc, shared = vc[tri_pos.faces], False
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
-        bounds = _vertex_bounds(vc, tri_pos.faces) if shared else _bounds(vc, z_near)
-        boxes = _pixel_boxes(camera, bounds)
+        boxes = _vertex_boxes(camera, vc, tri_pos.faces) if shared else _pixel_boxes(camera, _bounds(vc, z_near))
         tris = np.flatnonzero(boxes[3] > 0)
         vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
-        boxes = [b[tris] for b in boxes]
+        boxes = [b[tris].astype(np.int64, copy=False) for b in boxes]
         n_corner, vol = _edge_planes(vc)
         z_lo = np.maximum(np.minimum(np.minimum(vc[:, 0, 2], vc[:, 1, 2]), vc[:, 2, 2]), z_near)
         for k, sel in enumerate(_passes(vol, z_lo, boxes)):
