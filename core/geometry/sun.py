@@ -57,9 +57,12 @@ def _pairs(photos, masks, positions, normals, step):
     log luminance from the first to the second, clipped to +-1.
     """
     ends, dlog = [[], [], [], []], []
+
+    def log_lum(photo, r, c):  # at the pairs' ends only, not over the whole photo
+        lum = np.asarray(photo[r, c], np.float64)[:, :3].mean(axis=-1)
+        return np.log(np.maximum(lum, 1e-3))
+
     for photo, mask, pos, nrm in zip(photos, masks, positions, normals):
-        lum = np.asarray(photo, np.float64)[..., :3].mean(axis=-1)
-        log_lum = np.log(np.maximum(lum, 1e-3))
         h, w = mask.shape
         r, c = (a.ravel() for a in np.mgrid[0 : h - 1 : step, 0 : w - 1 : step])
         for dr, dc in ((0, 1), (1, 0)):
@@ -67,7 +70,7 @@ def _pairs(photos, masks, positions, normals, step):
             r0, c0, r1, c1 = r[ok], c[ok], r[ok] + dr, c[ok] + dc
             for k, a in enumerate((pos[r0, c0], nrm[r0, c0], pos[r1, c1], nrm[r1, c1])):
                 ends[k].append(a)
-            dlog.append(log_lum[r1, c1] - log_lum[r0, c0])
+            dlog.append(log_lum(photo, r1, c1) - log_lum(photo, r0, c0))
     p0, n0, p1, n1 = (np.concatenate(e).astype(np.float64) for e in ends)
     return np.concatenate([p0, p1]), np.concatenate([n0, n1]), np.clip(np.concatenate(dlog), -1.0, 1.0)
 
