@@ -114,6 +114,7 @@ class Discretization:
         self._pair = None
         self._nu_t = None
         self._row_weights = {}  # (lam, mu, dtype): row_scale, shared by the channels
+        self._kept = {}  # kept(): what a solver makes of the observations alone, shared by the solves that follow
         self._lock = threading.Lock()  # the channels' threads ask for what is made on first use at once
 
     @property
@@ -161,6 +162,18 @@ class Discretization:
         if x.dtype == np.float32:
             return scatter_add(self.obs_pixel, x, np.zeros(self.nu.shape[0], np.float32))
         return np.bincount(self.obs_pixel, weights=x, minlength=self.nu.shape[0])
+
+    def kept(self, key, make):
+        """``make()``, made on first use for ``key`` and then shared, read-only, by every solve on these
+        observations (the channels' threads, the restarts of the search over tilts, copies by :meth:`with_base`)."""
+        with self._lock:
+            if key in self._kept:
+                return self._kept[key]
+        value = make()  # outside the lock: other channels make their own at the same time
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        with self._lock:
+            return self._kept.setdefault(key, value)
 
     def nu_by_coefficient(self) -> np.ndarray:
         """``nu.T`` with contiguous rows, ``(K, P)`` (kept): the sigma-step's normal matrices weight it faster."""

@@ -179,12 +179,17 @@ class Coupling:
 
     def __init__(self, d, c, kappa, sigma0):
         self.kappa = float(kappa)
+        self.G = d.kept(("coupling metric", c), lambda: self._metric(d, c))
+        self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
+
+    @staticmethod
+    def _metric(d, c):
+        """``G_v`` of every view, ``(m, K, K)``: of the observations alone, so made once per channel."""
         w = d.obs_weight.astype(np.float64)
         values = d.from_pixels(d.values[:, c]).astype(np.float64)
         ibar2 = (np.sum(w * values) / max(np.sum(w), 1e-30)) ** 2
         beta = np.bincount(d.obs_pixel, weights=w, minlength=d.nu.shape[0])
-        self.G = prior_metric(ibar2 * view_normal_equations(d.nu, d.pixel_offsets, beta)[0])
-        self.world = self._fit_world(np.asarray(sigma0, np.float64), *split_gains(np.asarray(sigma0, np.float64)))
+        return prior_metric(ibar2 * view_normal_equations(d.nu, d.pixel_offsets, beta)[0])
 
     def _fit_world(self, sigma, s, g, rounds=3):
         G = self.G
