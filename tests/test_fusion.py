@@ -6,7 +6,7 @@ import scipy.ndimage as ndi
 
 import core.texture.fill as fill
 import core.texture.fuse as fusion
-from core.texture import fill_unseen, fuse_views
+from core.texture import fill_unseen, fuse_views, outline_pixels
 
 # ---------------------------------------------------------------- helpers
 
@@ -267,6 +267,19 @@ def _pixel_per_texel_view(n, mask):
     rows, cols = np.mgrid[0:n, 0:n]
     uv = np.stack([(cols + 0.5) / n, 1.0 - (rows + 0.5) / n], axis=-1).astype(np.float32)
     return uv, mask
+
+
+def test_outline_pixels_have_a_neighbour_off_the_mask_within_the_photo():
+    rng = np.random.default_rng(2)
+    for shape in ((23, 31), (1, 9), (7, 1), (1, 1)):
+        mask = rng.random(shape) > 0.3
+        h, w = shape
+        expect = np.zeros(shape, bool)
+        for r, c in zip(*np.nonzero(mask)):
+            near = [(r + dr, c + dc) for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1))]
+            expect[r, c] = any(0 <= i < h and 0 <= j < w and not mask[i, j] for i, j in near)
+        assert np.array_equal(outline_pixels(mask), expect)
+        assert not outline_pixels(np.ones(shape, bool)).any()  # the photo's border is no outline
 
 
 def test_outline_only_finds_the_texels_seen_only_at_the_outline():
