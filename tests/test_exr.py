@@ -5,7 +5,7 @@ import OpenEXR
 import pytest
 
 import core.io.exr
-from core.io.exr import exr_parts, read_exr, write_exr
+from core.io.exr import compression_threads, exr_parts, read_exr, write_exr
 
 
 def _rand(shape, seed=0):
@@ -216,3 +216,20 @@ def test_blender_multilayer_exr_is_read(tmp_path):
     hit = alpha > 0.99
     np.testing.assert_allclose(np.linalg.norm(nrm[hit], axis=1), 1.0, atol=1e-3)
     assert nrm[0, 3:5, 1].min() > 0.3  # top row: world normals point up (+Y)
+
+
+def test_compression_threads_write_the_same_bytes_and_are_set_back(tmp_path):
+    rng = np.random.default_rng(4)
+    image = (rng.random((300, 200, 4)) * 0.1 + np.linspace(0, 1, 200)[None, :, None]).astype(np.float32)
+    before = OpenEXR.global_thread_count()
+    write_exr(tmp_path / "one.exr", image)
+    with compression_threads(2):
+        assert OpenEXR.global_thread_count() == 2
+        write_exr(tmp_path / "two.exr", image)
+    assert OpenEXR.global_thread_count() == before
+    assert (tmp_path / "one.exr").read_bytes() == (tmp_path / "two.exr").read_bytes()
+    with pytest.raises(RuntimeError), compression_threads(2):  # set back whatever happens in the block
+        raise RuntimeError("stop")
+    assert OpenEXR.global_thread_count() == before
+    with compression_threads(1):
+        assert OpenEXR.global_thread_count() == 0  # one thread: the caller's

@@ -82,10 +82,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Cancelled, DelightError
-from ..parallel import thread_map
+from ..parallel import resolve_threads, thread_map
 from ..solve.sh import SH_BASIS_NAMES
 from .envmap import add_sun, envmap_image, radiance_sh, world_lighting
-from .exr import write_exr
+from .exr import compression_threads, write_exr
 from .jsonio import json_value
 from .names import unique_names
 
@@ -598,7 +598,8 @@ def write_outputs(
             os.makedirs(os.path.join(d, "views"))
         # Several files at once: the EXR's compression runs outside the interpreter's lock.
         check_cancel()
-        thread_map(lambda rel: _write_one(_abs(new_dir, rel), files[rel]), rels, threads, lambda _: check_cancel())
+        with compression_threads(resolve_threads(threads)):  # and each EXR's blocks of lines at once
+            thread_map(lambda rel: _write_one(_abs(new_dir, rel), files[rel]), rels, threads, lambda _: check_cancel())
         contents = dict(report() if callable(report) else report)
         contents["files"] = plan.files
         _write_json(_abs(new_dir, REPORT), contents)
