@@ -173,7 +173,7 @@ def test_boxes_from_the_vertices_are_the_triangles_own():
     fx, _, cx, fy, cy = raycast_module._intrinsics(cam)
     vv = np.stack([(col - cx) / fx * z, (row - cy) / fy * z, z], axis=1)
     faces = np.arange(3 * n).reshape(n, 3)
-    ours = raycast_module._vertex_boxes(cam, vv, faces)
+    ours = raycast_module._vertex_boxes(cam, vv, Triangles(vv, faces).corners)
     theirs = raycast_module._pixel_boxes(cam, raycast_module._bounds(vv[faces], 1e-9))
     assert 0.2 < np.mean(theirs[3] > 0) < 0.95
     for a, b in zip(ours, theirs):

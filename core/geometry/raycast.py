@@ -30,6 +30,7 @@ most of the work.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,6 +136,11 @@ class Triangles:
                 return cls(vertices, faces.reshape(-1, 3).astype(np.intp))
         return cls(corners.copy(), np.arange(len(corners), dtype=np.intp).reshape(-1, 3))
 
+    @functools.cached_property
+    def corners(self) -> np.ndarray:
+        """``faces.T`` with contiguous rows ``(3, T)`` (kept): each corner's vertices, read once per cast."""
+        return np.ascontiguousarray(self.faces.T)
+
     @property
     def tri_pos(self) -> np.ndarray:
         """``(T, 3, 3)``: each triangle's corners."""
@@ -144,9 +150,9 @@ class Triangles:
         return len(self.faces)
 
 
-def _vertex_boxes(camera, vv, faces):
-    """:func:`_pixel_boxes` of triangles ``faces`` over camera-space vertices ``vv`` that are all in front, for a
-    camera without skew.
+def _vertex_boxes(camera, vv, corners):
+    """:func:`_pixel_boxes` of triangles over camera-space vertices ``vv`` that are all in front, for a camera
+    without skew; ``corners`` ``(3, T)`` the triangles' vertices, corner by corner (:attr:`Triangles.corners`).
 
     Each vertex's first and last pixel column and row are worked out once, and a triangle's box is their extremes
     over its corners: the same numbers as from the triangle's projected bounds, as every step from a corner's
@@ -161,7 +167,7 @@ def _vertex_boxes(camera, vv, faces):
     y = fy * (vv[:, 1] / z) + cy
     first = [np.clip(np.ceil(p - _MARGIN), 0, n).astype(np.int32) for p, n in ((x, w), (y, h))]
     last = [np.clip(np.floor(p + _MARGIN), -1, n - 1).astype(np.int32) for p, n in ((x, w), (y, h))]
-    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    f0, f1, f2 = corners  # contiguous: a strided column of faces reads all three columns' memory
     c0, r0 = (np.minimum(np.minimum(a[f0], a[f1]), a[f2]) for a in first)
     c1, r1 = (np.maximum(np.maximum(a[f0], a[f1]), a[f2]) for a in last)
     nr = np.where(c1 >= c0, np.maximum(r1 - r0 + 1, 0), 0)
@@ -244,7 +250,7 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
         if shared and (float(vc[:, 2].min()) < z_near or _intrinsics(camera)[1]):
             vc, shared = vc[tri_pos.faces], False
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
-        boxes = _vertex_boxes(camera, vc, tri_pos.faces) if shared else _pixel_boxes(camera, _bounds(vc, z_near))
+        boxes = _vertex_boxes(camera, vc, tri_pos.corners) if shared else _pixel_boxes(camera, _bounds(vc, z_near))
         tris = np.flatnonzero(boxes[3] > 0)
         vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
         boxes = [b[tris].astype(np.int64, copy=False) for b in boxes]
