@@ -218,7 +218,7 @@ def nan_min_max(columns):
     return lo, hi
 
 
-def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
+def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
     """Nearest triangle hit by the ray through each pixel centre of ``camera``.
 
     Parameters
@@ -230,6 +230,10 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
     batch : int
         Number of (pixel, triangle) candidates tested at once; bounds memory
         (about 120 bytes per candidate).
+    pixels : (H * W,) bool array, optional
+        Only the rays through these pixels (flat, row by row), each hit as without it; every other pixel is a
+        miss. A triangle whose box of pixels holds none of them is left out, so a few pixels cost a few
+        triangles' work.
 
     Returns
     -------
@@ -252,6 +256,8 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
         boxes = _vertex_boxes(camera, vc, tri_pos.corners) if shared else _pixel_boxes(camera, _bounds(vc, z_near))
         tris = np.flatnonzero(boxes[3] > 0)
+        if pixels is not None:
+            tris = tris[_holds_any(pixels.reshape(h, w), [b[tris] for b in boxes])]
         vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
         boxes = [b[tris].astype(np.int64, copy=False) for b in boxes]
         n_corner, vol = _edge_planes(vc)
@@ -262,7 +268,22 @@ def raycast(camera, tri_pos, batch=1_000_000) -> RayHits:
             spans = _row_spans(camera, vc[sel], z_near, [b[sel] for b in boxes])
             if spans[0].size:
                 _nearest_hits(camera, n_corner[sel], vol[sel], tris[sel], z_near, spans, batch, depth, best, bary)
+    if pixels is not None:  # the left-out triangles' other pixels may hold a kept triangle's hits
+        off = ~pixels
+        depth[off], best[off], bary[off] = np.inf, -1, 0.0
     return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+
+
+def _holds_any(wanted, boxes):
+    """Whether each box of pixels (non-empty, :func:`_pixel_boxes`) holds a pixel of ``wanted`` (H, W) bool: by a
+    summed-area table, four lookups a box."""
+    h, w = wanted.shape
+    table = np.zeros((h + 1, w + 1), np.int64)
+    np.cumsum(np.cumsum(wanted, axis=0), axis=1, out=table[1:, 1:])
+    table = table.ravel()
+    c0, c1, r0, nr = boxes
+    top, bottom, left, right = r0 * (w + 1), (r0 + nr) * (w + 1), c0, c1 + 1
+    return (table[bottom + right] - table[top + right] - table[bottom + left] + table[top + left]) > 0
 
 
 def _edge_planes(vc):

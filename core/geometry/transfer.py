@@ -64,6 +64,10 @@ def open_factor(k: int) -> np.ndarray:
     return A_BAND[b] / _NORM_BAND[b]
 
 
+# Below this share of a shadow map's pixels read (points, which may share pixels), only those are cast.
+_CAST_READ_SHARE = 0.25
+
+
 def _shadow_camera(direction, centre, radius, resolution):
     """A distant pinhole camera looking along ``-direction`` at the bounding sphere, nearly orthographic."""
     w = np.asarray(direction, np.float64)
@@ -110,18 +114,29 @@ class ShadowMap:
         itself. Occluders nearer than about ``lift`` are missed.
     sphere : (centre, radius), optional
         The mesh's bounding sphere, if already known.
+    only : (points, normals), optional
+        The only points the map will be asked about (:meth:`open`): where they read a small share of its
+        pixels, only those pixels are cast, and any other point reads as open.
     """
 
-    def __init__(self, direction, tri_pos, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, sphere=None):
+    def __init__(
+        self, direction, tri_pos, resolution: int = 512, lift: float = 1.0, bias: float = 0.5, sphere=None, only=None
+    ):
         tri_pos = _occluders(tri_pos)
         centre, radius = _bounding_sphere(tri_pos) if sphere is None else sphere
         self.direction = np.asarray(direction, np.float64) / np.linalg.norm(direction)
         self.camera, self.pixel = _shadow_camera(self.direction, centre, radius, resolution)
-        self.depth = raycast(self.camera, tri_pos).depth.ravel()
         self.resolution, self.lift, self.bias = resolution, lift, bias
+        pixels = None
+        if only is not None:
+            read = self._lookup(*only)[0]
+            if read.size < _CAST_READ_SHARE * resolution * resolution:
+                pixels = np.zeros(resolution * resolution, bool)
+                pixels[read] = True
+        self.depth = raycast(self.camera, tri_pos, pixels=pixels).depth.ravel()
 
-    def open(self, points, normals) -> np.ndarray:
-        """``(P,)`` bool: the points (lifted along their unit normals) that the map sees no geometry in front of."""
+    def _lookup(self, points, normals):
+        """The map pixel (flat) and depth of each point, lifted along its unit normal."""
         # Lifted off the surface along its normal by `lift` map pixels, a point is in front of its own
         # surface by lift / cos(angle) at its map pixel, more than the surface's depth varies across
         # half a pixel (tan(angle) / 2): no self-shadowing at any angle, with a constant depth bias.
@@ -130,7 +145,12 @@ class ShadowMap:
         n = self.resolution
         col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, n - 1)
         row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, n - 1)
-        return self.depth[row * n + col] >= z - self.bias * self.pixel
+        return row * n + col, z
+
+    def open(self, points, normals) -> np.ndarray:
+        """``(P,)`` bool: the points (lifted along their unit normals) that the map sees no geometry in front of."""
+        read, z = self._lookup(points, normals)
+        return self.depth[read] >= z - self.bias * self.pixel
 
 
 def visibility(
@@ -164,7 +184,7 @@ def visibility(
     sphere = _bounding_sphere(tri_pos)
 
     def open_towards(w):
-        return ShadowMap(w, tri_pos, resolution, lift, bias, sphere).open(pts, nrm)
+        return ShadowMap(w, tri_pos, resolution, lift, bias, sphere, only=(pts, nrm)).open(pts, nrm)
 
     out = np.ones((pts.shape[0], len(directions)), dtype=bool)
     for k, col in enumerate(thread_map(open_towards, np.asarray(directions, np.float64), threads)):
