@@ -180,6 +180,31 @@ def test_boxes_from_the_vertices_are_the_triangles_own():
         assert np.array_equal(a, b)
 
 
+def test_a_few_pixels_are_hit_as_in_the_whole_cast_and_the_rest_miss():
+    # A fine sheet (triangles of a fraction of a pixel) and a ball of large triangles before a wall: the rays
+    # through a scattered few pixels, and through a block of them, hit what the whole cast hits, to the bit.
+    n = 90
+    xs = np.linspace(-2.4, 2.4, n + 1)
+    x, y = np.meshgrid(xs, xs)
+    grid = np.stack([x, y, 6.0 + 0.15 * np.sin(7 * x) * np.cos(5 * y)], axis=-1)
+    a, b, c, d = grid[:-1, :-1], grid[:-1, 1:], grid[1:, 1:], grid[1:, :-1]
+    sheet = np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+    p, faces = bumpy_ball(centre=(0.0, 0.0, 4.0))
+    cam = camera(w=80, h=60, f=55.0)
+    rng = np.random.default_rng(6)
+    for tris in (sheet, np.concatenate([p[faces], grid_quads(3, 6.0, 7.5)]), Triangles.of(p[faces], faces)):
+        whole = raycast(cam, tris, batch=900)
+        block = np.zeros((60, 80), bool)
+        block[20:31, 33:52] = True
+        for pixels in (rng.random(60 * 80) < 0.03, block.ravel()):
+            few = raycast(cam, tris, batch=900, pixels=pixels)
+            at = pixels.reshape(60, 80)
+            assert whole.mask[at].sum() > 20
+            for got, expect in zip((few.tri, few.depth, few.bary), (whole.tri, whole.depth, whole.bary)):
+                assert np.array_equal(got[at], expect[at])
+            assert not few.mask[~at].any() and np.all(few.depth[~at] == np.inf) and not few.bary[~at].any()
+
+
 def bumpy_ball(n=24, centre=(0.0, 0.0, 5.0)):
     """A closed ball with dents (so that some of its front hides more of its front), as shared vertices."""
     th, ph = np.meshgrid(np.linspace(0, np.pi, n + 1)[1:-1], np.linspace(0, 2 * np.pi, 2 * n, endpoint=False))

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core.geometry.transfer import occlusion_transfer, pixel_transfer, sphere_directions, visibility
+from core.geometry.transfer import ShadowMap, occlusion_transfer, pixel_transfer, sphere_directions, visibility
 from core.solve.sh import sh_basis
 
 
@@ -167,3 +167,15 @@ def test_visibility_is_the_same_on_any_number_of_threads():
     dirs = sphere_directions(16)
     one = visibility(p, n, tris, dirs, resolution=64, threads=1)
     assert np.array_equal(one, visibility(p, n, tris, dirs, resolution=64, threads=3))
+
+
+def test_a_shadow_map_cast_for_a_few_points_tells_them_as_the_whole_map_does():
+    tris = _floor_and_wall()
+    rng = np.random.default_rng(1)
+    p = np.stack([rng.uniform(-1.5, 1.5, 300), rng.uniform(-1.5, 1.5, 300), np.zeros(300)], axis=1)
+    n = np.tile([0.0, 0.0, 1.0], (300, 1))
+    for w in sphere_directions(12, 0.1):
+        whole, few = ShadowMap(w, tris, 256), ShadowMap(w, tris, 256, only=(p, n))
+        assert np.isinf(few.depth).mean() > 0.95 > np.isinf(whole.depth).mean()  # most of it is not cast
+        assert np.array_equal(few.open(p, n), whole.open(p, n))
+    assert 0.1 < visibility(p, n, tris, sphere_directions(12, 0.1), resolution=256).mean() < 0.9

@@ -262,24 +262,42 @@ def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
         boxes = [b[tris].astype(np.int64, copy=False) for b in boxes]
         n_corner, vol = _edge_planes(vc)
         z_lo = np.maximum(np.minimum(np.minimum(vc[:, 0, 2], vc[:, 1, 2]), vc[:, 2, 2]), z_near)
-        for k, sel in enumerate(_passes(vol, z_lo, boxes)):
+        # A few pixels leave the depths elsewhere at inf, which hides nothing: one pass.
+        passes = _passes(vol, z_lo, boxes) if pixels is None else [slice(None)]
+        wanted = None if pixels is None else _wanted_ends(pixels)
+        for k, sel in enumerate(passes):
             if k:  # what the passes before hide is left out
                 sel = sel[~_hidden(depth.reshape(h, w), z_lo[sel], [b[sel] for b in boxes])]
-            spans = _row_spans(camera, vc[sel], z_near, [b[sel] for b in boxes])
+            spans = _row_spans(camera, vc[sel], z_near, [b[sel] for b in boxes], wanted)
             if spans[0].size:
                 _nearest_hits(camera, n_corner[sel], vol[sel], tris[sel], z_near, spans, batch, depth, best, bary)
-    if pixels is not None:  # the left-out triangles' other pixels may hold a kept triangle's hits
+    if pixels is not None:  # a run's pixels between two wanted ones are hit as well
         off = ~pixels
         depth[off], best[off], bary[off] = np.inf, -1, 0.0
     return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+
+
+def _wanted_ends(pixels):
+    """For each pixel (flat), the first wanted pixel at or after it and the last at or before it (-1: none)."""
+    n = pixels.size
+    at = np.flatnonzero(pixels)
+    first = np.full(n + 1, n)
+    first[at] = at
+    first = np.minimum.accumulate(first[::-1])[::-1]
+    last = np.full(n, -1)
+    last[at] = at
+    return first, np.maximum.accumulate(last)
 
 
 def _holds_any(wanted, boxes):
     """Whether each box of pixels (non-empty, :func:`_pixel_boxes`) holds a pixel of ``wanted`` (H, W) bool: by a
     summed-area table, four lookups a box."""
     h, w = wanted.shape
-    table = np.zeros((h + 1, w + 1), np.int64)
-    np.cumsum(np.cumsum(wanted, axis=0), axis=1, out=table[1:, 1:])
+    table = np.zeros((h + 1, w + 1), np.int32)
+    rows, sums = np.cumsum(wanted, axis=1, dtype=np.int32), table[1:, 1:]
+    sums[0] = rows[0]
+    for r in range(1, h):  # row by row: a cumsum down the columns strides, ten times slower
+        np.add(sums[r - 1], rows[r], out=sums[r])
     table = table.ravel()
     c0, c1, r0, nr = boxes
     top, bottom, left, right = r0 * (w + 1), (r0 + nr) * (w + 1), c0, c1 + 1
@@ -381,18 +399,28 @@ def _pixel_boxes(camera, bounds):
     return c0, c1, r0, nr
 
 
-def _row_spans(camera, vc, z_near, boxes):
+def _row_spans(camera, vc, z_near, boxes, wanted=None):
     """Candidate pixels as runs on rows: triangle, row, first column and length of each run.
 
     One run per row of each triangle's box (``boxes``, :func:`_pixel_boxes`); its columns are the exact span
     of the projected triangle on that row (the box's for triangles that cross the camera plane), so few
-    candidates miss.
+    candidates miss. With ``wanted`` (:func:`_wanted_ends`), a run first goes from the first to the last wanted
+    pixel of its row of the box, and a row of the box without one has no run.
     """
     c0, c1, r0, nr = boxes
     tris = np.flatnonzero(nr > 0)
     pt = np.repeat(tris, nr[tris])
     prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris], nr[tris]))
-    lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
+    if wanted is None:
+        lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
+    else:
+        first, last = wanted
+        w = camera.width
+        at = prow * w
+        a, b = first[at + c0[pt]], last[at + c1[pt]]
+        keep = a <= b  # both on the row, as the box's ends are
+        pt, prow, a, b = pt[keep], prow[keep], a[keep] - at[keep], b[keep] - at[keep]
+        lo, hi = a.astype(np.float64), b.astype(np.float64)
     # A run of one column is left to the exact test: finding its span would cost as much.
     z = vc[:, :, 2]
     in_front = np.minimum(np.minimum(z[:, 0], z[:, 1]), z[:, 2]) >= z_near  # per triangle, then per run
