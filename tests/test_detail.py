@@ -481,3 +481,14 @@ def test_detail_albedo_leaves_out_the_outline_and_its_blended_background(scene):
     # Measured: clean 0.092, blended 0.37 to 0.40, left out 0.096 in each channel.
     assert np.all(e_bad > 2 * e_clean), (e_bad, e_clean)
     assert np.all(e_ours < 1.2 * e_clean), (e_ours, e_clean)
+
+
+def test_the_neighbourhood_mean_is_scipys_box_filter_with_zeros_beyond_the_edges():
+    from core.texture.detail import _box_mean
+
+    rng = np.random.default_rng(7)
+    a = (rng.random((37, 37)) * (rng.random((37, 37)) > 0.3)).astype(np.float32)
+    got = _box_mean(a)
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, ndi.uniform_filter(a, size=3, mode="constant"), rtol=1e-6, atol=1e-7)
+    assert abs(got[0, 0] - a[:2, :2].sum() / 9) < 1e-7  # a corner: its 2 x 2 block, the rest zeros
