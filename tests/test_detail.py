@@ -11,9 +11,10 @@ import scipy.ndimage as ndi
 
 from core.errors import Cancelled
 from core.evaluate.metrics import scaled_rmse
-from core.geometry.bake import bake_rows, bake_view
+from core.geometry.bake import bake_rows, bake_view, row_bands
 from core.geometry.bilinear import interpolate
 from core.geometry.camera import Camera
+from core.geometry.raycast import Triangles
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
 from core.pipeline import Options, compute, schedule, solve_parts
@@ -155,6 +156,16 @@ def test_bands_of_rows_bake_as_the_whole_view(scene):
         np.testing.assert_allclose(b.normal, whole.normal[rows], atol=1e-6)
         np.testing.assert_allclose(b.view_weight, whole.view_weight[rows], atol=1e-6)
     assert sum(b.mask.shape[0] for _, b in bands) == FULL[1]
+    # With the mesh's vertices shared (each projected once), the bands take the same triangles: the same bakes.
+    vertices = np.empty((mesh.tri_vert.max() + 1, 3))
+    vertices[mesh.tri_vert.ravel()] = mesh.tri_pos.reshape(-1, 3)  # the corners of one vertex made one point
+    mesh = replace(mesh, tri_pos=vertices[mesh.tri_vert])
+    shared = Triangles.of(mesh.tri_pos, mesh.tri_vert)
+    assert len(shared.vertices) < mesh.tri_pos.size // 6
+    plain, once = row_bands(cams[0], mesh, 50 * FULL[0]), row_bands(cams[0], mesh, 50 * FULL[0], shared=shared)
+    for (r0, a), (r1, b) in zip(plain, once, strict=True):
+        a, b = a(), b()
+        assert r0 == r1 and np.array_equal(a.pixel, b.pixel) and np.array_equal(a.uv, b.uv)
 
 
 def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):

@@ -129,8 +129,11 @@ def bake_view(camera, mesh, corner_normals=None, face_normals=None) -> ViewBake:
     return bake_pixels(camera, mesh, corner_normals, face_normals).image()
 
 
-def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):
+def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None, shared=None):
     """The bands of whole rows of about ``max_pixels`` pixels that :func:`bake_rows` bakes, each still to bake.
+
+    ``shared``: the mesh as :class:`core.geometry.raycast.Triangles` (its corners as shared vertices), if made:
+    each vertex is then projected once to tell which rows a triangle reaches, not once per corner.
 
     Yields
     ------
@@ -143,13 +146,18 @@ def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, fa
         corner_normals, face_normals = mesh_normals(mesh)
     h, w = camera.height, camera.width
     rows = max(1, int(max_pixels) // w)
-    vc = camera.to_camera(np.asarray(mesh.tri_pos, np.float64))  # as the ray caster transforms them
+    if shared is None:
+        vc = camera.to_camera(np.asarray(mesh.tri_pos, np.float64))  # as the ray caster transforms them
+        corners = [np.s_[:, k] for k in range(3)]
+    else:  # each vertex once; a corner's numbers are its vertex's
+        vc = camera.to_camera(shared.vertices)
+        corners = list(shared.corners)
     z = vc[..., 2]
-    z_lo, z_hi = nan_min_max([z[:, 0], z[:, 1], z[:, 2]])
-    front = z_lo > 0
     with np.errstate(divide="ignore", invalid="ignore"):
         y = camera.K[1, 1] * vc[..., 1] / z + camera.K[1, 2]
-    y_lo, y_hi = nan_min_max([y[:, 0], y[:, 1], y[:, 2]])
+    z_lo, z_hi = nan_min_max([z[at] for at in corners])
+    front = z_lo > 0
+    y_lo, y_hi = nan_min_max([y[at] for at in corners])
     y_lo, y_hi = np.where(front, y_lo, -np.inf), np.where(front, y_hi, np.inf)
     behind = z_hi <= 0  # no ray reaches these
     del vc, z, y

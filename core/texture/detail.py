@@ -35,6 +35,7 @@ import numpy as np
 from ..errors import DelightError
 from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
+from ..geometry.raycast import Triangles
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index, texels_reached
 from ..geometry.transfer import shading_rows
 from ..io.photos import photo_pixels
@@ -340,6 +341,7 @@ def detail_albedo(
     n, c = base.shape[0], base.shape[2]
     sums = np.zeros((1 + c, n * n), np.float32)
     corner, face = mesh_normals(mesh)
+    shared = Triangles.of(mesh.tri_pos, mesh.tri_vert)  # each vertex projected once per photo, not per corner
     floor = np.asarray(floor, np.float64).copy()
     floor[:, :2] = np.maximum(floor[:, :2], 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
@@ -369,7 +371,7 @@ def detail_albedo(
                 # More bands than threads: once band `workers` is drawn, every band of the last photo has been
                 # added in, and the next photo is read; so no more than two are held at once.
                 pixels = min(band_pixels, -(-cam.height // (workers + 1)) * cam.width)
-                for j, (r0, bake) in enumerate(row_bands(cam, mesh, pixels, corner, face)):
+                for j, (r0, bake) in enumerate(row_bands(cam, mesh, pixels, corner, face, shared)):
                     if workers > 1 and j == workers and v + 1 < m:
                         ahead = start(load, v + 1)
                     yield v, photo, clipped, cells_of, r0, bake
