@@ -256,10 +256,11 @@ def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
         # Only the triangles whose box holds a pixel centre go on: on a mesh finer than the pixels, a few.
         boxes = _vertex_boxes(camera, vc, tri_pos.corners) if shared else _pixel_boxes(camera, _bounds(vc, z_near))
         tris = np.flatnonzero(boxes[3] > 0)
-        if pixels is not None:
-            tris = tris[_holds_any(pixels.reshape(h, w), [b[tris] for b in boxes])]
-        vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
         boxes = [b[tris].astype(np.int64, copy=False) for b in boxes]
+        if pixels is not None:
+            keep = _holds_any(pixels.reshape(h, w), boxes)
+            tris, boxes = tris[keep], [b[keep] for b in boxes]
+        vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
         n_corner, vol = _edge_planes(vc)
         z_lo = np.maximum(np.minimum(np.minimum(vc[:, 0, 2], vc[:, 1, 2]), vc[:, 2, 2]), z_near)
         # A few pixels leave the depths elsewhere at inf, which hides nothing: one pass.
@@ -281,7 +282,7 @@ def _wanted_ends(pixels):
     """For each pixel (flat), the first wanted pixel at or after it and the last at or before it (-1: none)."""
     n = pixels.size
     at = np.flatnonzero(pixels)
-    first = np.full(n + 1, n)
+    first = np.full(n, n)
     first[at] = at
     first = np.minimum.accumulate(first[::-1])[::-1]
     last = np.full(n, -1)
