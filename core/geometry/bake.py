@@ -120,7 +120,9 @@ def bake_pixels(camera, mesh, corner_normals=None, face_normals=None) -> PixelBa
 
 
 def _dot(a, b):
-    """Row by row dot products of ``(P, 3)`` arrays, as ``einsum("ij,ij->i")`` sums them, over whole columns."""
+    """Row by row dot products of ``(P, 3)`` arrays, over whole columns: several times faster than
+    ``einsum("ij,ij->i")``, which adds the three products in another order (a last-bit difference in about a
+    quarter of the rows)."""
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
