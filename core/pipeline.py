@@ -345,8 +345,11 @@ def _find_sun(photos, masks, occluders, bakes, lighting, opt, progress):
     return sun, info
 
 
-def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progress, cancel, stages):
-    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution."""
+def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, occluders, opt, progress, cancel, stages):
+    """The detail stage (:func:`core.texture.detail.detail_albedo`) on every view at its own resolution.
+
+    ``occluders``: the mesh as shared vertices, if the shadows made it (None: the stage makes it).
+    """
     from .texture.detail import agreement, detail_albedo, shading_floors, view_shadings
 
     report = stage_progress(progress, "detail", stages)
@@ -382,6 +385,7 @@ def _detail(inputs, bakes, masks, sigma, albedo, inside, cells, sun, opt, progre
         cancel=cancel,
         outlines=bool(opt.fill_outlines),
         threads=opt.threads,
+        shared=occluders,
     )
 
 
@@ -545,7 +549,19 @@ def compute(
         result.texture = None
         t = time.perf_counter()
         albedo, seen = _detail(
-            inputs, bakes, solve_masks, result.sigma, albedo, layout.inside, cells, sun, opt, progress, cancel, stages
+            inputs,
+            bakes,
+            solve_masks,
+            result.sigma,
+            albedo,
+            layout.inside,
+            cells,
+            sun,
+            occluders,
+            opt,
+            progress,
+            cancel,
+            stages,
         )
         times["detail"], peaks["detail"] = time.perf_counter() - t, peak_mb()
         check_cancel(cancel)

@@ -286,6 +286,7 @@ def detail_albedo(
     sun=None,
     outlines=False,
     threads=None,
+    shared=None,
 ):
     """The albedo texture from the photos at their full resolution, one photo at a time.
 
@@ -325,6 +326,9 @@ def detail_albedo(
         ``base``, and counts as reached.
     threads : int or None
         Bands at work at once (None: every available core).
+    shared : core.geometry.raycast.Triangles, optional
+        ``mesh`` as shared vertices, if already made (the shadows' casters): each vertex is projected once per
+        photo to tell which rows its triangles reach. Made here if not given.
 
     Returns
     -------
@@ -341,7 +345,8 @@ def detail_albedo(
     n, c = base.shape[0], base.shape[2]
     sums = np.zeros((1 + c, n * n), np.float32)
     corner, face = mesh_normals(mesh)
-    shared = Triangles.of(mesh.tri_pos, mesh.tri_vert)  # each vertex projected once per photo, not per corner
+    if shared is None:
+        shared = Triangles.of(mesh.tri_pos, mesh.tri_vert)
     floor = np.asarray(floor, np.float64).copy()
     floor[:, :2] = np.maximum(floor[:, :2], 1e-6)
     inside_flat = np.asarray(inside, bool).ravel()
