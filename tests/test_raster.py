@@ -284,3 +284,24 @@ def test_a_mesh_seen_from_one_side_is_cast_near_half_first_whichever_its_winding
         assert len(passes) == 2 and z_lo[passes[0]].max() <= z_lo[passes[1]].min()
         orders.append(passes)
     assert all(np.array_equal(one, other) for one, other in zip(*orders))
+
+
+def test_runs_give_what_repeat_gives():
+    from core.geometry.runs import runs
+
+    counts = np.array([3, 0, 1, 5, 0, 2])
+    run, place = runs(counts)
+    np.testing.assert_array_equal(run, np.repeat(np.arange(counts.size), counts))
+    np.testing.assert_array_equal(place, [0, 1, 2, 0, 0, 1, 2, 3, 4, 0, 1])
+    values = np.array([0.1, 7.0, -2.5, 1e-300, np.inf, 3.0])
+    np.testing.assert_array_equal(np.take(values, run), np.repeat(values, counts))
+    empty = runs(np.zeros(0, np.intp))
+    assert empty[0].size == 0 and empty[1].size == 0
+
+
+def test_barycentric_weights_are_contiguous_planes():
+    cam = camera()
+    hits = raycast(cam, grid_quads(4, 0.5, 2.0))
+    assert hits.bary.shape == (cam.height, cam.width, 3)
+    for c in range(3):
+        assert hits.bary[..., c].flags.c_contiguous  # bake_pixels reads them without a copy

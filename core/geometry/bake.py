@@ -99,7 +99,7 @@ def bake_pixels(camera, mesh, corner_normals=None, face_normals=None) -> PixelBa
     hits = raycast(camera, mesh.tri_pos)
     pixel = np.flatnonzero(hits.tri >= 0)
     tri = hits.tri.ravel()[pixel]
-    b = [np.take(hits.bary[..., c].ravel(), pixel) for c in range(3)]
+    b = [np.take(hits.bary[..., c].ravel(), pixel) for c in range(3)]  # contiguous planes: no copies
     del hits
     p = at_hits(b, mesh.tri_pos, tri)
     n = at_hits(b, corner_normals, tri)

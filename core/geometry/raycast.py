@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .runs import runs
+
 __all__ = ["RayHits", "Triangles", "raycast", "at_hits", "nan_min_max"]
 
 # Inclusive edge test with a tiny tolerance so that a pixel centre exactly on a
@@ -52,7 +54,7 @@ class RayHits:
         Index of the triangle hit, -1 where the ray misses.
     bary : (H, W, 3) float64
         Barycentric weights of the triangle's three corners at the hit (0 where
-        the ray misses).
+        the ray misses): a view of three (H, W) planes, so ``bary[..., c]`` is contiguous.
     depth : (H, W) float64
         Camera-space depth z of the hit (inf where the ray misses).
     """
@@ -244,7 +246,7 @@ def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
     h, w = camera.height, camera.width
     depth = np.full(h * w, np.inf)
     best = np.full(h * w, -1, dtype=np.intp)
-    bary = np.zeros((h * w, 3))
+    bary = np.zeros((3, h * w))  # plane by plane: each weight is written and read over whole arrays
     if len(tri_pos):
         shared = isinstance(tri_pos, Triangles)
         vc = camera.to_camera(tri_pos.vertices if shared else tri_pos)
@@ -274,8 +276,8 @@ def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
                 _nearest_hits(camera, n_corner[sel], vol[sel], tris[sel], z_near, spans, batch, depth, best, bary)
     if pixels is not None:  # a run's pixels between two wanted ones are hit as well
         off = ~pixels
-        depth[off], best[off], bary[off] = np.inf, -1, 0.0
-    return RayHits(best.reshape(h, w), bary.reshape(h, w, 3), depth.reshape(h, w))
+        depth[off], best[off], bary[:, off] = np.inf, -1, 0.0
+    return RayHits(best.reshape(h, w), np.moveaxis(bary.reshape(3, h, w), 0, -1), depth.reshape(h, w))
 
 
 def _wanted_ends(pixels):
@@ -410,8 +412,9 @@ def _row_spans(camera, vc, z_near, boxes, wanted=None):
     """
     c0, c1, r0, nr = boxes
     tris = np.flatnonzero(nr > 0)
-    pt = np.repeat(tris, nr[tris])
-    prow = np.repeat(r0[tris], nr[tris]) + (np.arange(pt.size) - np.repeat(np.cumsum(nr[tris]) - nr[tris], nr[tris]))
+    run, place = runs(nr[tris])
+    pt = np.take(tris, run)
+    prow = np.take(r0[tris], run) + place
     if wanted is None:
         lo, hi = c0[pt].astype(np.float64), c1[pt].astype(np.float64)
     else:
@@ -428,7 +431,9 @@ def _row_spans(camera, vc, z_near, boxes, wanted=None):
     front = (hi > lo) & in_front[pt]
     if front.any():
         f = np.flatnonzero(front)
-        x_lo, x_hi = _row_extent(camera, vc[pt[f]], prow[f].astype(np.float64))
+        px, py = _projected(camera, vc)  # per triangle, then per run: a triangle has a run per row
+        at = pt[f]
+        x_lo, x_hi = _row_extent([c[at] for c in px], [c[at] for c in py], prow[f].astype(np.float64))
         empty = ~np.isfinite(x_lo)
         lo[f] = np.where(empty, 1.0, np.maximum(lo[f], np.ceil(x_lo - _MARGIN)))
         hi[f] = np.where(empty, 0.0, np.minimum(hi[f], np.floor(x_hi + _MARGIN)))
@@ -437,26 +442,34 @@ def _row_spans(camera, vc, z_near, boxes, wanted=None):
     return pt[keep], prow[keep], lo[keep].astype(np.int64), plen[keep]
 
 
-def _row_extent(camera, v, y):
-    """Leftmost and rightmost x where row ``y`` meets each projected triangle ``v`` (in front of the camera).
+def _projected(camera, v):
+    """The pixel ``x`` and ``y`` of each corner of camera-space triangles ``v`` (T, 3, 3), as three (T,) arrays
+    each (corner by corner); not finite at corners on or behind the camera plane."""
+    fx, skew, cx, fy, cy = _intrinsics(camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        py = [fy * v[:, k, 1] / v[:, k, 2] + cy for k in range(3)]
+        px = [fx * v[:, k, 0] / v[:, k, 2] + skew * v[:, k, 1] / v[:, k, 2] + cx for k in range(3)]
+    return px, py
+
+
+def _row_extent(px, py, y):
+    """Leftmost and rightmost x where row ``y`` meets each projected triangle (in front of the camera), whose
+    corners are at ``px``, ``py`` (:func:`_projected`, one array per corner).
 
     NaN where the row misses the triangle.
     """
-    fx, skew, cx, fy, cy = _intrinsics(camera)
     with np.errstate(divide="ignore", invalid="ignore"):
-        py = fy * v[:, :, 1] / v[:, :, 2] + cy
-        px = fx * v[:, :, 0] / v[:, :, 2] + skew * v[:, :, 1] / v[:, :, 2] + cx
         xs = []
         for i, j in ((0, 1), (1, 2), (2, 0)):
-            y_lo, y_hi = np.minimum(py[:, i], py[:, j]), np.maximum(py[:, i], py[:, j])
+            y_lo, y_hi = np.minimum(py[i], py[j]), np.maximum(py[i], py[j])
             on = (y >= y_lo - _MARGIN) & (y <= y_hi + _MARGIN)
-            dy_e = py[:, j] - py[:, i]
-            s_e = np.clip(np.where(dy_e != 0, (y - py[:, i]) / dy_e, 0.0), 0.0, 1.0)
-            x_e = px[:, i] + s_e * (px[:, j] - px[:, i])
+            dy_e = py[j] - py[i]
+            s_e = np.clip(np.where(dy_e != 0, (y - py[i]) / dy_e, 0.0), 0.0, 1.0)
+            x_e = px[i] + s_e * (px[j] - px[i])
             xs.append(np.where(on, x_e, np.nan))
             # A horizontal edge on the row contributes both ends.
             flat = on & (dy_e == 0)
-            xs.append(np.where(flat, px[:, j], np.nan))
+            xs.append(np.where(flat, px[j], np.nan))
     return nan_min_max(xs)
 
 
@@ -482,7 +495,7 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
     """Test the candidates of ``spans`` exactly, about ``batch`` at a time, keeping the nearest hit per pixel.
 
     ``n_corner`` and ``vol``: the triangles' :func:`_edge_planes`; ``ids`` their indices, which ``best`` takes.
-    ``depth``, ``best`` and ``bary`` are the flat per-pixel outputs, updated in place.
+    ``depth``, ``best`` (flat per pixel) and ``bary`` (3, pixels) are the outputs, updated in place.
     """
     pt, prow, plo, plen = spans
     cum = np.cumsum(plen)
@@ -492,24 +505,26 @@ def _nearest_hits(camera, n_corner, vol, ids, z_near, spans, batch, depth, best,
         stop = max(int(np.searchsorted(cum, base + batch, side="right")), start + 1)
         sl = slice(start, stop)
         start = stop
-        cnt = plen[sl]
-        n = int(cnt.sum())
-        run = np.repeat(np.arange(cnt.size), cnt)  # each candidate's run: its row and triangle, where it hits
-        c = np.repeat(plo[sl], cnt) + (np.arange(n) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-        wts, s, hit = _edge_test(camera, n_corner[pt[sl]], cnt, prow[sl], c)
+        run, place = runs(plen[sl])  # each candidate's run: its row and triangle, where it hits
+        c = np.take(plo[sl], run) + place
+        wts, s, hit = _edge_test(camera, n_corner[pt[sl]], run, prow[sl], c)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.repeat(vol[pt[sl]], cnt) / s
+            t = np.take(vol[pt[sl]], run) / s
         hit &= t > z_near
         if not hit.any():
             continue
+        # np.take and 1-D targets: the same elements, about twice as fast as fancy indexing here.
         sel = np.flatnonzero(hit)
-        pix = prow[sl][run[sel]] * camera.width + c[sel]
-        t = t[sel]
+        at = np.take(run, sel)
+        pix = np.take(prow[sl], at) * camera.width + np.take(c, sel)
+        t = np.take(t, sel)
         np.minimum.at(depth, pix, t)
-        win = t <= depth[pix]
-        sel, pix = sel[win], pix[win]  # one gather per array below, not a boolean mask twice over
-        best[pix] = ids[pt[sl][run[sel]]]
-        bary[pix] = (wts[:, sel] / s[sel]).T
+        win = np.flatnonzero(t <= np.take(depth, pix))
+        sel, at, pix = np.take(sel, win), np.take(at, win), np.take(pix, win)
+        best[pix] = np.take(ids[pt[sl]], at)
+        s = np.take(s, sel)
+        for k in range(3):
+            bary[k][pix] = np.take(wts[k], sel) / s
 
 
 def _cross_into(a, b, out):
@@ -519,12 +534,12 @@ def _cross_into(a, b, out):
         out[:, k] -= a[:, j] * b[:, i]
 
 
-def _edge_test(camera, n_corner, cnt, row, c):
+def _edge_test(camera, n_corner, run, row, c):
     """Signed-volume test of the rays through pixel centres against their triangles, run by run.
 
-    ``n_corner`` (k, 3, 3) holds each run's triangle's edge-plane normals, ``cnt`` (k,) its length and ``row``
-    (k,) its row; ``c`` (n,) is each candidate's column. Returns the unnormalised barycentric weights (3, n),
-    their sum, and whether the ray passes inside the triangle.
+    ``n_corner`` (k, 3, 3) holds each run's triangle's edge-plane normals and ``row`` (k,) its row; ``run``
+    (n,) is each candidate's run (:func:`core.geometry.runs.runs`) and ``c`` (n,) its column. Returns the
+    unnormalised barycentric weights (3, n), their sum, and whether the ray passes inside the triangle.
     """
     fx, skew, cx, fy, cy = _intrinsics(camera)
     # Normalised ray directions d = (dx, dy, 1) through the pixel centres. dy, and each plane's term in it, is
@@ -532,16 +547,16 @@ def _edge_test(camera, n_corner, cnt, row, c):
     dy = (row - cy) / fy
     dx = c - cx
     if skew:
-        dx -= skew * np.repeat(dy, cnt)
+        dx -= skew * np.take(dy, run)
     dx /= fx
-    # 1-D per-component arrays: np.repeat over sorted runs is far faster
-    # than fancy-indexing an (n, 3, 3) array.
+    # 1-D per-component arrays, read per candidate from per-run columns: far faster than fancy-indexing an
+    # (n, 3, 3) array.
     wts = np.empty((3, c.size))
     for k in range(3):
         nk = n_corner[:, k]
-        np.multiply(np.repeat(nk[:, 0], cnt), dx, out=wts[k])
-        wts[k] += np.repeat(nk[:, 1] * dy, cnt)
-        wts[k] += np.repeat(nk[:, 2], cnt)
+        np.multiply(np.take(nk[:, 0], run), dx, out=wts[k])
+        wts[k] += np.take(nk[:, 1] * dy, run)
+        wts[k] += np.take(nk[:, 2], run)
     s = wts[0] + wts[1]  # the order of wts.sum(axis=0)
     s += wts[2]
     sign = np.sign(s)

@@ -173,4 +173,8 @@ class SunLight:
         """``(P,)`` float32 at surface points and their unit normals (world space)."""
         nrm = np.asarray(normals, np.float64)
         lit = np.maximum(nrm @ self.direction, 0.0)
-        return (self.shadow.open(points, nrm) * lit).astype(np.float32)
+        # Only the points that face the sun are looked up in its shadow map: the rest are 0 either way.
+        on = np.flatnonzero(lit > 0)
+        out = np.zeros(lit.size, np.float32)
+        out[on] = self.shadow.open(np.take(points, on, axis=0), np.take(nrm, on, axis=0)) * np.take(lit, on)
+        return out

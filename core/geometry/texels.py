@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bilinear import masked_corners
+from .runs import runs
 
 __all__ = [
     "TextureLayout",
@@ -364,9 +365,9 @@ def _row_spans(a, b, c, slack, lo, hi, ok):
     """
     h = np.where(ok & (hi[:, 0] >= lo[:, 0]), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0), 0)
     tris = np.flatnonzero(h > 0)
-    tri = np.repeat(tris, h[tris])
-    first = np.repeat(np.cumsum(h[tris]) - h[tris], h[tris])
-    row = np.repeat(lo[tris, 1], h[tris]) + (np.arange(tri.size) - first)
+    run, place = runs(h[tris])
+    tri = np.take(tris, run)
+    row = np.take(lo[tris, 1], run) + place
     x0 = lo[tri, 0].astype(np.float64)
     x1 = hi[tri, 0].astype(np.float64)
     yf = row.astype(np.float64)
@@ -417,18 +418,19 @@ def _rasterise(q, tri_pos, n, margin, low_priority=None):
         # What is one number per span (its triangle's planes, its row's term) is worked out per span and
         # repeated over its candidates: the same values as per candidate, fewer gathers.
         ts = span_tri[spans]
-        t = np.repeat(ts, count)
-        y = np.repeat(span_row[spans], count)
-        x = np.repeat(span_x0[spans] + (np.maximum(offs[spans], k0) - offs[spans]), count)
-        x += np.arange(k1 - k0) - np.repeat(np.cumsum(count) - count, count)
+        run, place = runs(count)
+        t = np.take(ts, run)
+        y = np.take(span_row[spans], run)
+        x = np.take(span_x0[spans] + (np.maximum(offs[spans], k0) - offs[spans]), run)
+        x += place
         xf = x.astype(np.float64)
         yf = span_row[spans].astype(np.float64)
-        lam = [np.repeat(a[ts, i], count) * xf for i in range(3)]
+        lam = [np.take(a[ts, i], run) * xf for i in range(3)]
         for i in range(3):  # a x + b y + c, in that order
-            lam[i] += np.repeat(b[ts, i] * yf, count)
-            lam[i] += np.repeat(c[ts, i], count)
-        keep = (lam[0] + np.repeat(slack[ts, 0], count) >= 0) & (lam[1] + np.repeat(slack[ts, 1], count) >= 0)
-        keep &= lam[2] + np.repeat(slack[ts, 2], count) >= 0
+            lam[i] += np.take(b[ts, i] * yf, run)
+            lam[i] += np.take(c[ts, i], run)
+        keep = (lam[0] + np.take(slack[ts, 0], run) >= 0) & (lam[1] + np.take(slack[ts, 1], run) >= 0)
+        keep &= lam[2] + np.take(slack[ts, 2], run) >= 0
         t, x, y = t[keep], x[keep], y[keep]
         lam = np.stack([li[keep] for li in lam], axis=1)
         # Signed distance (texels) to the triangle's edge lines: >= 0 inside.
@@ -484,8 +486,7 @@ def _seam_pairs(q, tri_vert, inside, n):
     len1 = np.linalg.norm(q_hi[e1] - q_lo[e1], axis=1)
     len2 = np.linalg.norm(q_hi[e2] - q_lo[e2], axis=1)
     ns = np.ceil(np.maximum(len1, len2)).astype(np.int64) + 1
-    e = np.repeat(np.arange(e1.size), ns)
-    k = np.arange(e.size) - np.repeat(np.cumsum(ns) - ns, ns)
+    e, k = runs(ns)
     s = ((k + 0.5) / ns[e])[:, None]
 
     def texel(edge):
