@@ -503,3 +503,28 @@ def test_the_neighbourhood_mean_is_scipys_box_filter_with_zeros_beyond_the_edges
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, ndi.uniform_filter(a, size=3, mode="constant"), rtol=1e-6, atol=1e-7)
     assert abs(got[0, 0] - a[:2, :2].sum() / 9) < 1e-7  # a corner: its 2 x 2 block, the rest zeros
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_means_in_blocks_of_rows_are_those_of_the_whole_texture(monkeypatch, threads):
+    import core.texture.detail as detail
+
+    rng = np.random.default_rng(3)
+    n, c = 41, 3
+    reached = rng.random((n * n, 1)) > 0.4  # texels no pixel reached take their neighbours' pixels, or base
+    sums = (rng.random((n * n, 1 + c)) * reached).astype(np.float32)
+    base = rng.random((n, n, c)).astype(np.float32)
+    prior = np.float32(detail.PRIOR_WEIGHT)
+    whole = detail._mean(sums, base, prior, threads)  # one block: n < _MEAN_ROWS
+    # By its definition, over the whole texture at once.
+    wsum, near = sums[:, 0].reshape(n, n), detail._box_mean(sums[:, 0].reshape(n, n))
+    for k in range(c):
+        a = sums[:, 1 + k].reshape(n, n)
+        own = (a + prior * base[..., k]) / (wsum + prior)
+        around = (detail._box_mean(a) + prior * base[..., k]) / (near + prior)
+        np.testing.assert_array_equal(whole[0][..., k], np.where(wsum > 0, own, around))
+    np.testing.assert_array_equal(whole[1], wsum > 0)
+    monkeypatch.setattr(detail, "_MEAN_ROWS", 4)  # blocks whose edges fall inside the texture
+    blocks = detail._mean(sums, base, prior, threads)
+    np.testing.assert_array_equal(blocks[0], whole[0])
+    np.testing.assert_array_equal(blocks[1], whole[1])

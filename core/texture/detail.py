@@ -59,6 +59,8 @@ _SCALE_MIN = 0.1
 _LEAST_AGREEMENT = 1e-3
 # Pixels per band of rows of the full-resolution bake.
 _BAND_PIXELS = 1_000_000
+# Texel rows per block of the final means (:func:`_mean`).
+_MEAN_ROWS = 32
 
 
 def shading(normal, uv, sigma_view, cells=None, floor=None, sun=None, position=None, values=None) -> np.ndarray:
@@ -223,13 +225,13 @@ def _working_pixel(n_full, n_work):
 def _texel_sums(texel, w, q):
     """Pixels summed per texel (flat indices), weights ``w`` (P,) and quotients ``q`` (P, C).
 
-    Returns the texels (each once) and per texel the sum of w, then of w q per channel: ``(1 + C, T)``.
+    Returns the texels (each once) and per texel the sum of w, then of w q per channel: ``(T, 1 + C)``.
     """
     texels, at = texels_reached(texel)
-    sums = np.empty((1 + q.shape[1], texels.size), np.float32)
-    sums[0] = np.bincount(at, w, texels.size)
+    sums = np.empty((texels.size, 1 + q.shape[1]), np.float32)
+    sums[:, 0] = np.bincount(at, w, texels.size)
     for k in range(q.shape[1]):
-        sums[1 + k] = np.bincount(at, w * q[:, k], texels.size)
+        sums[:, 1 + k] = np.bincount(at, w * q[:, k], texels.size)
     return texels, sums
 
 
@@ -249,23 +251,36 @@ def _box_mean(a):
     return out
 
 
-def _mean(sums, base, prior):
-    """Each texel's weighted mean quotient, with weight ``prior`` of ``base``.
+def _mean(sums, base, prior, threads=None):
+    """Each texel's weighted mean quotient, with weight ``prior`` of ``base``; ``sums`` ``(N * N, 1 + C)`` as
+    :func:`_texel_sums` gives them.
 
     A texel no pixel reached takes the mean of its 3 x 3 neighbourhood's pixels where there are some (photos a
     little coarser than the texture), else ``base``. Returns the texture and the texels some pixel reached.
+    Worked out in blocks of rows (each with the rows either side, for the neighbourhoods) on ``threads``
+    threads: the same numbers as over the whole texture, with each block's arrays in the cache.
     """
     n, c = base.shape[0], base.shape[2]
-    wsum = sums[0].reshape(n, n)
-    near = _box_mean(wsum)
-    direct = wsum > 0
+    sums = sums.reshape(n, n, 1 + c)
+    direct = sums[..., 0] > 0
     out = np.empty((n, n, c), np.float32)
-    for k in range(c):
-        a = sums[1 + k].reshape(n, n)
-        b = base[..., k]
-        own = (a + prior * b) / (wsum + prior)
-        around = (_box_mean(a) + prior * b) / (near + prior)
-        out[..., k] = np.where(direct, own, around)
+
+    def rows(r0):
+        r1 = min(r0 + _MEAN_ROWS, n)
+        lo, hi = max(r0 - 1, 0), min(r1 + 1, n)
+        inner = slice(r0 - lo, r1 - lo)
+        part = sums[lo:hi]
+        wsum = part[..., 0]
+        near = _box_mean(wsum)[inner]
+        wsum = wsum[inner]
+        for k in range(c):
+            a = part[..., 1 + k]
+            b = base[r0:r1, :, k]
+            own = (a[inner] + prior * b) / (wsum + prior)
+            around = (_box_mean(a)[inner] + prior * b) / (near + prior)
+            out[r0:r1, :, k] = np.where(direct[r0:r1], own, around)
+
+    thread_map(rows, range(0, n, _MEAN_ROWS), threads)
     return out, direct
 
 
@@ -343,7 +358,10 @@ def detail_albedo(
     Cancelled
     """
     n, c = base.shape[0], base.shape[2]
-    sums = np.zeros((1 + c, n * n), np.float32)
+    sums = np.zeros((n * n, 1 + c), np.float32)
+    # A texel's sums as one record: each band's texels are read and written a record at a time, 16 bytes for
+    # three channels, about 3x faster than channel by channel across four arrays.
+    records = sums.view(np.dtype((np.void, sums.itemsize * (1 + c)))).ravel()
     corner, face = mesh_normals(mesh)
     if shared is None:
         shared = Triangles.of(mesh.tri_pos, mesh.tri_vert)
@@ -434,12 +452,13 @@ def detail_albedo(
                     progress(done / total, f"photo {v + 1}/{m}")
             if edge is not None:
                 outlined[edge[edge >= 0]] = True
-            for row, add in zip(sums, band_sums):  # row by row: 1-D fancy indexing is 4x faster than (4, K)
-                row[texels] += add
+            added = np.take(records, texels).view(np.float32).reshape(band_sums.shape)
+            added += band_sums
+            records[texels] = added.view(records.dtype).ravel()
             done += h * cameras[v].width
             if progress is not None:
                 progress(done / total, f"photo {v + 1}/{m}")
     if progress is not None:
         progress(1.0, f"{m} photos in {time.perf_counter() - t0:.0f} s")
-    albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT))
+    albedo, reached = _mean(sums, np.asarray(base, np.float32), np.float32(PRIOR_WEIGHT), threads)
     return albedo, reached | (outlined & inside_flat).reshape(n, n)
