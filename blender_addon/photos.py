@@ -151,13 +151,14 @@ def read_pixels(img, camera_name, label=None, info=None):
     """Read a ``bpy.types.Image`` (on the main thread); the rest is left to a callable that any thread may run.
 
     Returns ``(finish, (W, H))``: ``finish()`` gives the image as ``(H, W, 3)`` float32 linear, row 0 at the
-    top (and fills ``info``'s ``"clipped"``). Blender's part, here, is decoding the file and, for an 8-bit
-    image, how its colour space converts codes (:func:`_code_tables`); the pixels' conversion is NumPy's.
+    top (and fills ``info``'s ``"clipped"``); ``finish(coded=True)`` gives an 8-bit image whose colours tables
+    give as its :class:`core.io.photos.CodedPhoto` instead, a quarter of the size, its colours never made
+    whole. Blender's part, here, is decoding the file and, for an 8-bit image, how its colour space converts
+    codes (:func:`_code_tables`); the pixels' conversion is NumPy's.
 
     ``label`` names the photo in messages (default: the image's name and file). ``info`` (a dict), if given,
     receives ``"float"``: whether the image is stored as floats, and for 8-bit images ``"clipped"``: the
-    (H, W) pixels with a channel at or above :data:`core.io.photos.CLIP_CODE`, and where tables give its
-    colours, ``"coded"``: the same photo as a :class:`core.io.photos.CodedPhoto`, a quarter of its size.
+    (H, W) pixels with a channel at or above :data:`core.io.photos.CLIP_CODE`.
 
     Raises
     ------
@@ -179,7 +180,8 @@ def read_pixels(img, camera_name, label=None, info=None):
         flat = np.empty(w * h * ch, dtype=np.float32)
         img.pixels.foreach_get(flat)
         if not is_float:
-            opaque = ch not in (2, 4) or bool(np.all(flat[ch - 1 :: ch] == 1.0))  # alpha, the last, all 255
+            # Alpha, the last channel, all 255: codes / 255 are at most 1, so its least is 1 (no (H, W) temporary).
+            opaque = ch not in (2, 4) or float(flat[ch - 1 :: ch].min()) == 1.0
             # With alpha, Blender's conversion premultiplies and the colour is divided back: the whole photo.
             tables = _code_tables(img) if opaque else None
             if tables is None:
@@ -188,14 +190,13 @@ def read_pixels(img, camera_name, label=None, info=None):
         if not was_loaded and img.has_data and not img.is_dirty:
             img.buffers_free()
 
-    def finish():
+    def finish(coded=False):
         px = flat.reshape(h, w, ch)[::-1]  # Image.pixels row 0 is the bottom
         if not is_float:
             if rgb is None:
-                coded, clipped = _coded(px, tables)
-                out = coded.colours()
-                if info is not None:
-                    info["coded"] = coded
+                out, clipped = _coded(px, tables)
+                if not coded:
+                    out = out.colours()
             else:
                 out, clipped = rgb, clipped_pixels(px[:, :, : min(ch, 3)])
             if info is not None:  # clipping is judged on the codes, whatever the colour space
@@ -334,12 +335,13 @@ def _load_file(path, camera_name, check_existing=True, info=None):
 def find_photo(scene, cam_obj, images_dir=None, info=None):
     """The camera's photo, read (:func:`read_pixels`), and where it came from.
 
-    ``info`` (a dict), if given, receives ``"float"``, ``"clipped"`` and ``"coded"`` (see :func:`read_pixels`).
+    ``info`` (a dict), if given, receives ``"float"`` and ``"clipped"`` (see :func:`read_pixels`).
 
     Returns
     -------
-    finish : callable() -> (H, W, 3) float32 array
-        The photo, linear, row 0 at the top; any thread may call it.
+    finish : callable(coded=False) -> (H, W, 3) float32 array
+        The photo, linear, row 0 at the top (or an 8-bit one's codes, :func:`read_pixels`); any thread may call
+        it.
     size : (W, H)
     source : str
         ``"background image 'name'"``, ``"image plane 'obj' (image 'name')"``

@@ -360,15 +360,15 @@ def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None
     name = cam.name
 
     def make():
-        photo = finish()
+        # An 8-bit photo as its codes: downscaled a few rows at a time, and kept in place of its colours.
+        photo = finish(coded=True)
         small = downscale(photo, working_res_mp)[0]
         clipped = full_clipped = info.get("clipped")
         if clipped is not None and full_camera is not None:  # a working pixel is clipped if any photo pixel in it is
             clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
         full = None
-        coded = info.pop("coded", None)  # the photo's codes: kept in place of its colours, a quarter the size
         if keep_full is not None and full_camera is not None:
-            full = FullPhoto(camera=full_camera, load=keep_full(photo if coded is None else coded, full_clipped))
+            full = FullPhoto(camera=full_camera, load=keep_full(photo, full_clipped))
         return ViewInput(name=name, camera=camera, photo=small, source=source, clipped=clipped, full=full)
 
     return make

@@ -9,7 +9,7 @@ import pytest
 from core.errors import DelightError
 from core.io import photo_cache
 from core.io.photo_cache import PREFIX, PhotoCache
-from core.io.photos import CodedPhoto, photo_pixels, photo_scaled, srgb_to_linear
+from core.io.photos import CodedPhoto, _area_matrix, downscale, photo_pixels, photo_scaled, srgb_to_linear
 
 
 def test_copies_read_back_as_half_floats_and_go_with_the_folders_they_made(tmp_path):
@@ -75,6 +75,25 @@ def test_a_grey_photos_code_stands_for_all_three_channels():
     codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1)
     colours = CodedPhoto(codes, tables).colours()
     np.testing.assert_array_equal(colours, np.stack([tables[k][codes[..., 0], k] for k in range(3)], axis=2))
+
+
+def test_a_photo_is_downscaled_in_blocks_of_rows_as_in_one_product_and_its_codes_as_its_colours():
+    rng = np.random.default_rng(4)
+    tables = np.zeros((3, 256, 3), np.float32)
+    for k in range(3):
+        tables[k][:, k] = srgb_to_linear(np.arange(256) / 255.0)
+    codes = rng.integers(0, 256, (97, 61, 3)).astype(np.uint8)
+    colours = CodedPhoto(codes, tables).colours()
+    small, (sx, sy) = downscale(colours, 0.0005)
+    h2, w2 = small.shape[:2]
+    assert h2 * w2 <= 500 and h2 > 8 and (sx, sy) == (w2 / 61, h2 / 97)  # more than one block of rows
+    # The definition: the area matrices applied to the whole photo at once.
+    ay, ax = _area_matrix(97, h2), _area_matrix(61, w2)
+    rows = (ay @ colours.reshape(97, -1)).reshape(h2, 61, 3)
+    whole = (ax @ rows.transpose(1, 0, 2).reshape(61, -1)).reshape(w2, h2, 3).transpose(1, 0, 2)
+    np.testing.assert_array_equal(small, whole)
+    np.testing.assert_array_equal(downscale(CodedPhoto(codes, tables), 0.0005)[0], small)
+    np.testing.assert_array_equal(downscale(CodedPhoto(codes, tables), 1.0)[0], colours)  # fits: its colours
 
 
 def test_an_existing_output_folder_and_its_files_stay(tmp_path):

@@ -62,22 +62,37 @@ def working_size(h, w, max_mp):
 def downscale(photo, max_mp):
     """Area-average a photo down to at most ``max_mp`` megapixels.
 
+    ``photo``: ``(H, W, C)`` float32, or an 8-bit one's :class:`CodedPhoto`, whose colours are worked out a few
+    rows at a time and never held whole. The output is made in blocks of rows, each from the input rows it
+    averages: the same sums in the same order as over the whole photo at once, with each block in the cache.
+
     Returns
     -------
-    photo : (H', W', 3) float32
+    photo : (H', W', C) float32
     scale : (sx, sy)
         ``W'/W`` and ``H'/H`` (1, 1 when the photo already fits).
     """
+    coded = isinstance(photo, CodedPhoto)
     h, w = photo.shape[:2]
     h2, w2 = working_size(h, w, max_mp)
     if (h2, w2) == (h, w):
-        return photo, (1.0, 1.0)
+        return photo.colours() if coded else photo, (1.0, 1.0)
     ay, ax = _area_matrix(h, h2), _area_matrix(w, w2)
     c = photo.shape[2]
-    rows = (ay @ photo.reshape(h, w * c)).reshape(h2, w, c)
-    cols = ax @ rows.transpose(1, 0, 2).reshape(w, h2 * c)
-    out = cols.reshape(w2, h2, c).transpose(1, 0, 2)
-    return np.ascontiguousarray(out, dtype=np.float32), (w2 / w, h2 / h)
+    out = np.empty((h2, w2, c), np.float32)
+    for i0 in range(0, h2, _DOWNSCALE_ROWS):
+        i1 = min(i0 + _DOWNSCALE_ROWS, h2)
+        part = ay[i0:i1]
+        j0, j1 = int(part.indices.min()), int(part.indices.max()) + 1
+        block = photo.rows(j0, j1) if coded else photo[j0:j1]
+        rows = (part[:, j0:j1] @ block.reshape(j1 - j0, w * c)).reshape(i1 - i0, w, c)
+        cols = ax @ rows.transpose(1, 0, 2).reshape(w, (i1 - i0) * c)
+        out[i0:i1] = cols.reshape(w2, i1 - i0, c).transpose(1, 0, 2)
+    return out, (w2 / w, h2 / h)
+
+
+# Output rows of :func:`downscale` made at a time.
+_DOWNSCALE_ROWS = 8
 
 
 def clipped_pixels(codes, code: int = CLIP_CODE) -> np.ndarray:
@@ -139,6 +154,10 @@ class CodedPhoto:
             rows = slice(r0, r0 + _CODE_ROWS)
             out[rows] = self._colours_of(self.codes[rows])
         return out
+
+    def rows(self, r0: int, r1: int) -> np.ndarray:
+        """The colours ``(r1 - r0, W, 3)`` float32 of rows ``r0`` to ``r1``."""
+        return self._colours_of(self.codes[r0:r1])
 
     def pixels(self, rows: slice, index) -> np.ndarray:
         """The colours ``(P, 3)`` float32 of the pixels ``index`` (flat, row by row) of the rows ``rows``."""
