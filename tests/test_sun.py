@@ -166,3 +166,24 @@ def test_the_shading_rows_are_the_transfer_rows_times_the_lighting(scene):
         got = shading_rows(sigma[:, :k], n, at, grid, light, p)
         assert got.shape == (n.shape[0], 3) and got.dtype == np.float32
         np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("facing", [1.0, 0.5])
+def test_the_sun_term_is_the_shadow_maps_openness_times_the_cosine(scene, facing, monkeypatch):
+    # Points that face away from the sun are left out of its shadow map's lookup when they are many: the same
+    # numbers as looking every point up.
+    from core.geometry import sun as sun_module
+    from core.geometry.sun import SunLight
+
+    _, masks, positions, normals = _views(scene, 1.0)
+    n, p = normals[1][masks[1]].astype(np.float32), positions[1][masks[1]].astype(np.float32)
+    light = SunLight(SUN, scene)
+    away = np.random.default_rng(0).random(n.shape[0]) > facing
+    n[away & (n @ SUN > 0)] *= -1  # turned away: their cosine is 0 or less
+    term = light.term(p, n)
+    cosine = np.maximum(n.astype(np.float64) @ light.direction, 0.0)
+    expect = (light.shadow.open(p, n.astype(np.float64)) * cosine).astype(np.float32)
+    np.testing.assert_array_equal(term, expect)
+    assert term.dtype == np.float32 and (term[away] == 0).all() and (term > 0.3).mean() > 0.2
+    monkeypatch.setattr(sun_module, "_LOOKUP_ALL", 2.0)  # never all: only those facing the sun
+    np.testing.assert_array_equal(light.term(p, n), expect)

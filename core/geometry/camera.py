@@ -69,12 +69,17 @@ class Camera:
 
         Depth is the camera-space z (positive in front of the camera).
         """
+        x, y, z = self.pixel_coordinates(points)
+        return np.stack([x, y], axis=-1), z
+
+    def pixel_coordinates(self, points: np.ndarray):
+        """:meth:`project`'s pixel x, pixel y and depth, as three ``(...)`` arrays."""
         pc = self.to_camera(points)
         z = pc[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             x = self.K[0, 0] * pc[..., 0] / z + self.K[0, 1] * pc[..., 1] / z + self.K[0, 2]
             y = self.K[1, 1] * pc[..., 1] / z + self.K[1, 2]
-        return np.stack([x, y], axis=-1), z
+        return x, y, z
 
     def ray_directions(self) -> np.ndarray:
         """Unit world-space ray directions through every pixel centre, ``(H, W, 3)``."""

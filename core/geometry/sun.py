@@ -157,6 +157,10 @@ def find_sun(
     return SunSearch(direction=dirs[best], score=float(scores[best]), directions=dirs, scores=scores)
 
 
+# Above this share of points facing the sun, all are looked up in its shadow map.
+_LOOKUP_ALL = 0.8
+
+
 class SunLight:
     """The sun term of the shading, ``V(x, w) max(0, n . w)``, for one direction ``w`` over one mesh.
 
@@ -173,8 +177,10 @@ class SunLight:
         """``(P,)`` float32 at surface points and their unit normals (world space)."""
         nrm = np.asarray(normals, np.float64)
         lit = np.maximum(nrm @ self.direction, 0.0)
-        # Only the points that face the sun are looked up in its shadow map: the rest are 0 either way.
         on = np.flatnonzero(lit > 0)
+        if on.size > _LOOKUP_ALL * lit.size:  # nearly all: the copies would cost more than the lookups they save
+            return (self.shadow.open(points, nrm) * lit).astype(np.float32)
+        # Only the points that face the sun are looked up in its shadow map: the rest are 0 either way.
         out = np.zeros(lit.size, np.float32)
         out[on] = self.shadow.open(np.take(points, on, axis=0), np.take(nrm, on, axis=0)) * np.take(lit, on)
         return out

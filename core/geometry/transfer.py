@@ -141,11 +141,13 @@ class ShadowMap:
         # surface by lift / cos(angle) at its map pixel, more than the surface's depth varies across
         # half a pixel (tan(angle) / 2): no self-shadowing at any angle, with a constant depth bias.
         pts = np.asarray(points, np.float64) + (self.lift * self.pixel) * np.asarray(normals, np.float64)
-        xy, z = self.camera.project(pts)
+        x, y, z = self.camera.pixel_coordinates(pts)
         n = self.resolution
-        col = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, n - 1)
-        row = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, n - 1)
-        return row * n + col, z
+        col = np.clip(np.rint(x).astype(np.intp), 0, n - 1)
+        row = np.clip(np.rint(y).astype(np.intp), 0, n - 1)
+        row *= n
+        row += col
+        return row, z
 
     def open(self, points, normals) -> np.ndarray:
         """``(P,)`` bool: the points (lifted along their unit normals) that the map sees no geometry in front of."""
