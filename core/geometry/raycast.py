@@ -93,6 +93,8 @@ def at_hits(weights, corner_values, tri) -> np.ndarray:
     # A mesh larger than the hits: each hit's rows gathered at once, not its corners column by column from far
     # apart in memory. Few triangles, each hit many times: their columns, which stay in the cache.
     rows = np.take(corner_values, tri, axis=0) if tri.size < len(corner_values) else None
+    if rows is None:  # read many times each: as float64 once, which the products are in either way
+        corner_values = np.asarray(corner_values, np.float64)
 
     def column(c, j):
         return rows[:, c, j] if rows is not None else np.take(corner_values[:, c, j], tri)

@@ -203,9 +203,15 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
     return out
 
 
-def _all_or(keep):
-    """``keep`` (a bool mask), or a slice of everything where it keeps everything: views, not copies."""
-    return slice(None) if keep.all() else keep
+def _rows_kept(keep):
+    """The rows a bool mask ``keep`` keeps, as indices for :func:`_kept`, or None where it keeps them all."""
+    return None if keep.all() else np.flatnonzero(keep)
+
+
+def _kept(a, rows):
+    """``a``'s rows ``rows`` (:func:`_rows_kept`): ``a`` itself where all are kept. np.take of indices copies an
+    (n, 3) array's rows about 5x faster than a bool mask does."""
+    return a if rows is None else np.take(a, rows, axis=0)
 
 
 def _channel_mean(a):
@@ -418,23 +424,23 @@ def detail_albedo(
             on_edge = outline_pixels(mask.reshape(h, width)).ravel()[b.pixel]
             edge = texel_index(b.uv[keep & on_edge], n)
             keep &= ~on_edge
-        keep = _all_or(keep)
-        pixel, uv = b.pixel[keep], b.uv[keep]
-        pos = None if sun is None else b.position[keep]
+        keep = _rows_kept(keep)
+        pixel, uv = _kept(b.pixel, keep), _kept(b.uv, keep)
+        pos = None if sun is None else _kept(b.position, keep)
         values = photo_pixels(photo, slice(r0, r0 + h), pixel)
-        a = shading(b.normal[keep], uv, sigma[v], cells, floor, sun, pos, values)
+        a = shading(_kept(b.normal, keep), uv, sigma[v], cells, floor, sun, pos, values)
         q = values / a
         # Weighted by the squared shading, the mean is the least-squares albedo of the pixels
         # (division_start's): dark pixels, whose quotient carries the most noise, count least.
-        w = b.view_weight[keep] * _channel_mean(a) ** 2
+        w = _kept(b.view_weight, keep) * _channel_mean(a) ** 2
         if cells_of is not None:
             rr, cc = np.divmod(pixel, width)
             w = w * weights[v][cells_of[0][r0 + rr], cells_of[1][cc]]
         texel = texel_index(uv, n)
         keep = texel >= 0
         keep[keep] = inside_flat[texel[keep]]
-        keep = _all_or(keep)
-        return v, h, edge, *_texel_sums(texel[keep], w[keep], q[keep])
+        keep = _rows_kept(keep)
+        return v, h, edge, *_texel_sums(_kept(texel, keep), _kept(w, keep), _kept(q, keep))
 
     check_cancel(cancel)
     if progress is not None:
