@@ -169,8 +169,12 @@ def row_bands(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, fa
         k = camera.K.copy()
         k[1, 2] -= r0
         band = Camera(K=k, R=camera.R, t=camera.t, width=w, height=r1 - r0)
-        part = MeshArrays(tri_pos=mesh.tri_pos[sel], tri_uv=mesh.tri_uv[sel], tri_vert=mesh.tri_vert[sel], uv_map="")
-        yield r0, functools.partial(bake_pixels, band, part, corner_normals[sel], face_normals[sel])
+        # np.take: rows by index several times faster than fancy indexing.
+        tri_pos, tri_uv, tri_vert, corner, face = (
+            np.take(a, sel, axis=0) for a in (mesh.tri_pos, mesh.tri_uv, mesh.tri_vert, corner_normals, face_normals)
+        )
+        part = MeshArrays(tri_pos=tri_pos, tri_uv=tri_uv, tri_vert=tri_vert, uv_map="")
+        yield r0, functools.partial(bake_pixels, band, part, corner, face)
 
 
 def bake_rows(camera, mesh, max_pixels: int = 2_000_000, corner_normals=None, face_normals=None):

@@ -112,7 +112,6 @@ def clipped_pixels(codes, code: int = CLIP_CODE) -> np.ndarray:
 
 # Rows of codes turned into colours at a time: the codes and their colours stay in cache.
 _CODE_ROWS = 64
-_CHANNEL_OFFSET = np.array([0, 256, 512], np.uint16)
 
 
 @dataclass
@@ -129,13 +128,13 @@ class CodedPhoto:
     tables: np.ndarray  # (3, 256, 3) float32
     gains: np.ndarray | None = None  # (3,) float32
     # Where each channel's colour depends on its own code alone (sRGB, Non-Color, linear Rec.709): the three
-    # channels' curves, one after the other, for one lookup of code + 256 * channel.
+    # channels' curves, (3, 256).
     _curves: np.ndarray | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self):
         t = self.tables
         if all(np.all(t[k][:, j] == 0) for k in range(3) for j in range(3) if j != k):
-            self._curves = np.concatenate([t[k][:, k] for k in range(3)])
+            self._curves = np.stack([t[k][:, k] for k in range(3)])
 
     @property
     def shape(self) -> tuple:
@@ -162,16 +161,18 @@ class CodedPhoto:
     def pixels(self, rows: slice, index) -> np.ndarray:
         """The colours ``(P, 3)`` float32 of the pixels ``index`` (flat, row by row) of the rows ``rows``."""
         codes = self.codes[rows]
-        return self._colours_of(codes.reshape(-1, codes.shape[-1])[index])
+        return self._colours_of(np.take(codes.reshape(-1, codes.shape[-1]), index, axis=0))
 
     def _colours_of(self, codes):
-        if codes.shape[-1] == 1:
-            codes = np.repeat(codes, 3, axis=-1)
-        if self._curves is not None:
-            code = codes.astype(np.uint16)
-            code += _CHANNEL_OFFSET
-            out = np.take(self._curves, code, mode="clip")  # every index is in range; "raise" would buffer
+        grey = codes.shape[-1] == 1
+        if self._curves is not None:  # channel by channel, each code looked up in its own curve
+            out = np.empty((*codes.shape[:-1], 3), np.float32)
+            for k in range(3):
+                # Every index is in range; "raise" would buffer.
+                np.take(self._curves[k], codes[..., 0 if grey else k], out=out[..., k], mode="clip")
         else:
+            if grey:
+                codes = np.repeat(codes, 3, axis=-1)
             t = self.tables
             out = t[0][codes[..., 0]] + t[1][codes[..., 1]] + t[2][codes[..., 2]]
         if self.gains is not None:
@@ -187,7 +188,7 @@ def photo_pixels(photo, rows: slice, index) -> np.ndarray:
     if isinstance(photo, CodedPhoto):
         return photo.pixels(rows, index)
     part = photo[rows]
-    return part.reshape(-1, part.shape[-1])[index]
+    return np.take(part.reshape(-1, part.shape[-1]), index, axis=0)  # rows by index: np.take is several times faster
 
 
 def photo_scaled(photo, gains):
