@@ -6,6 +6,7 @@ import numpy as np
 
 from .errors import DelightError
 from .geometry.texels import STRETCH_FACTOR, triangle_areas, uv_stretched
+from .masks import masked
 
 __all__ = ["NEGATIVE_MAX_SHARE", "check_photos", "check_uv_layout"]
 
@@ -39,7 +40,7 @@ def check_photos(names, photos, masks) -> list:
     """
     warnings = []
     for name, photo, mask in zip(names, photos, masks):
-        px = photo[mask]
+        px = masked(photo, mask)
         if px.size == 0:
             continue
         negative = (px < 0).any(axis=1)

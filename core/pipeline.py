@@ -14,6 +14,7 @@ import numpy as np
 from .geometry.raycast import Triangles
 from .geometry.texels import texture_layout
 from .io.photos import photo_scaled
+from .masks import masked
 from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
@@ -200,7 +201,7 @@ def channel_gains(photos, masks, level: float | None = None) -> np.ndarray:
     """
     total, count = 0.0, 0
     for photo, mask in zip(photos, masks):
-        total = total + photo[mask].sum(axis=0, dtype=np.float64)
+        total = total + masked(photo, mask).sum(axis=0, dtype=np.float64)
         count += int(np.count_nonzero(mask))
     means = np.asarray(total, np.float64) / max(count, 1)
     good = np.isfinite(means) & (means > 0)
@@ -263,7 +264,14 @@ def _transfer(bakes, masks, cells, sun, threads=None) -> list:
 
     def fill(v):
         b, m = bakes[v], masks[v]
-        transfer_rows(b.normal[m], b.uv[m], cells, sun, None if sun is None else b.position[m], out=transfer[v])
+        transfer_rows(
+            masked(b.normal, m),
+            masked(b.uv, m),
+            cells,
+            sun,
+            None if sun is None else masked(b.position, m),
+            out=transfer[v],
+        )
 
     thread_map(fill, range(len(masks)), threads)
     return transfer

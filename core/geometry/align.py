@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import ndimage
 
+from ..masks import masked
 from ..parallel import thread_map
 from ..progress import check_cancel
 from .bilinear import clamped_corners, interpolate
@@ -136,7 +137,7 @@ class _View:
         self.detail = self.grey - _blur(self.grey, ndimage.binary_erosion(mask), BLUR_PX)
         self.gy, self.gx = np.gradient(self.detail)
         self.mask_rows, self.mask_cols = np.nonzero(mask)
-        t = texel_index(uv[mask], size)
+        t = texel_index(masked(uv, mask), size)
         ok = t >= 0
         self.mask_rows, self.mask_cols, t = self.mask_rows[ok], self.mask_cols[ok], t[ok]
         # Each texel the photo reaches once, and which of them each pixel is in.

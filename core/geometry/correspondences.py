@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..masks import masked
 from .bilinear import clamped_corners, interpolate
 
 __all__ = ["Correspondences", "find_correspondences", "neighbour_views"]
@@ -81,7 +82,7 @@ def _view_dirs(cameras, positions, masks):
     centres = np.array([c.center for c in cameras])
     out = []
     for p, m in zip(positions, masks):
-        pts = np.asarray(p)[m]
+        pts = masked(p, m)
         g = pts.mean(axis=0) if len(pts) else np.zeros(3)
         d = centres - g
         out.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30))

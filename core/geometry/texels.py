@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..masks import masked
 from .bilinear import masked_corners
 from .runs import runs
 
@@ -537,7 +538,7 @@ def texel_totals(uvs, masks, weights, valid):
     texels, pixel_weights = [], []
     total = np.zeros(n * n)
     for i, mask in enumerate(masks):
-        texel, landed = nearest_texel(uvs[i][mask], valid)
+        texel, landed = nearest_texel(masked(uvs[i], mask), valid)
         w = np.ones(texel.size) if weights is None else weights[i][mask].astype(np.float64)
         w = np.where(landed > 0, w, 0.0)
         texels.append(texel)
@@ -621,7 +622,7 @@ def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
     while size > 16:
         ratios = []
         for m, uv in zip(masks, uvs):
-            t = texel_index(uv[m], size)
+            t = texel_index(masked(uv, m), size)
             reached = np.zeros(size * size, bool)  # counted by marking: np.unique would sort every pixel
             reached[t[t >= 0]] = True
             hit = np.count_nonzero(reached)

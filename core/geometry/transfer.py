@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..masks import masked
 from ..parallel import thread_map
 from ..solve.sh import sh_basis, sh_degree, sphere_directions
 from .camera import Camera
@@ -302,11 +303,16 @@ def occlusion_grid(
     n_cells = grid * grid
     acc = np.zeros((n_cells, 7))
     for i, (uv, mask, nrm, pos) in enumerate(zip(views_uv, views_mask, views_normal, views_position)):
-        cell = texel_index(uv[mask], grid)
+        cell = texel_index(masked(uv, mask), grid)
         w = np.ones(cell.size) if views_weight is None else views_weight[i][mask].astype(np.float64) + 1e-3
         ok = cell >= 0
         vals = np.concatenate(
-            [w[:, None], w[:, None] * pos[mask].astype(np.float64), w[:, None] * nrm[mask].astype(np.float64)], axis=1
+            [
+                w[:, None],
+                w[:, None] * masked(pos, mask).astype(np.float64),
+                w[:, None] * masked(nrm, mask).astype(np.float64),
+            ],
+            axis=1,
         )[ok]
         for j in range(7):
             acc[:, j] += np.bincount(cell[ok], weights=vals[:, j], minlength=n_cells)
@@ -372,7 +378,9 @@ def pixel_transfer(
         order,
         threads,
     )
-    return [cells.transfer(uv[mask], nrm[mask]) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)]
+    return [
+        cells.transfer(masked(uv, mask), masked(nrm, mask)) for uv, mask, nrm in zip(views_uv, views_mask, views_normal)
+    ]
 
 
 def shading_rows(sigma, normal, uv=None, cells=None, sun=None, position=None) -> np.ndarray:

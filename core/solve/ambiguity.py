@@ -25,6 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..masks import masked
 from ..progress import StepCounter, check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
@@ -105,7 +106,7 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> R
     rho = np.where(np.isfinite(rho), rho, d.rho0)
     if params.light_edges > 0:
         d = with_edges_freed(d, rho, params.light_edges)
-    normals = np.concatenate([n[m] for n, m in zip(problem.normals, problem.masks)]).astype(np.float64)
+    normals = np.concatenate([masked(n, m) for n, m in zip(problem.normals, problem.masks)]).astype(np.float64)
     gram, _ = view_normal_equations(d.nu, d.pixel_offsets, np.ones(d.nu.shape[0]))
     tilts = tilt_vectors(params.light_tilts)
     has_data = d.scatter(d.obs_weight.astype(np.float64)) > 0

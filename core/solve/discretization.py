@@ -58,6 +58,7 @@ import scipy.sparse as sp
 
 from ..geometry.bilinear import masked_corners
 from ..geometry.texels import bilinear_texels, nearest_texel
+from ..masks import masked
 from ..parallel import start, thread_map
 from .highlights import clipped_regions
 from .problem import Problem, stacked_rows
@@ -231,8 +232,8 @@ def _masked_pixels(problem: Problem):
     values, nus = [], []
     for i in range(problem.n_views):
         mask = problem.masks[i]
-        values.append(problem.images[i][mask])
-        nus.append(sh_basis(problem.normals[i][mask]) if problem.transfer is None else problem.transfer[i])
+        values.append(masked(problem.images[i], mask))
+        nus.append(sh_basis(masked(problem.normals[i], mask)) if problem.transfer is None else problem.transfer[i])
         offsets[i + 1] = offsets[i] + int(mask.sum())
     # The pipeline's transfer is one array in blocks per view (row_blocks): no copy of it.
     return offsets, np.concatenate(values).astype(np.float32), stacked_rows(nus)
@@ -448,9 +449,9 @@ def _splats(problem: Problem, offsets: np.ndarray, nearest: bool = False, thread
     def view(i):
         mask = problem.masks[i]
         if nearest:  # one column: the texel of largest weight, with the pixel's whole weight
-            flat, wts = (a[:, None] for a in nearest_texel(problem.uv[i][mask], inside))
+            flat, wts = (a[:, None] for a in nearest_texel(masked(problem.uv[i], mask), inside))
         else:
-            flat, wts = bilinear_texels(problem.uv[i][mask], inside)
+            flat, wts = bilinear_texels(masked(problem.uv[i], mask), inside)
         if problem.view_weight is not None:
             wts = wts * problem.view_weight[i][mask][:, None]
         pix = np.repeat(np.arange(offsets[i], offsets[i + 1]), flat.shape[1])

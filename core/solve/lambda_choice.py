@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.texels import texel_index
+from ..masks import masked
 from .sh import sh_basis
 
 __all__ = [
@@ -99,13 +100,13 @@ def _pixel_logs(images, masks, normals, uvs, size):
     """Cell, view, log luminance and normal of every masked pixel with a cell and a positive luminance."""
     cells, views, logs, norms = [], [], [], []
     for v, (img, mask, nrm, uv) in enumerate(zip(images, masks, normals, uvs)):
-        lum = np.asarray(img)[mask].astype(np.float64).mean(axis=-1)
-        t = texel_index(np.asarray(uv)[mask], size)
+        lum = masked(img, mask).astype(np.float64).mean(axis=-1)
+        t = texel_index(masked(uv, mask), size)
         ok = (t >= 0) & (lum > 0) & np.isfinite(lum)
         cells.append(t[ok])
         views.append(np.full(int(ok.sum()), v))
         logs.append(np.log(lum[ok]))
-        norms.append(np.asarray(nrm)[mask][ok].astype(np.float64))
+        norms.append(masked(nrm, mask)[ok].astype(np.float64))
     return tuple(np.concatenate(a) for a in (cells, views, logs, norms))
 
 

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..geometry.texels import texel_of_uv
+from ..masks import masked
 
 __all__ = ["Hierarchy", "block_grid", "surface_grid"]
 
@@ -66,7 +67,7 @@ def block_grid(problem, d) -> np.ndarray:
     if d.domain == "texture":
         return np.column_stack([np.zeros(d.n_unknowns, np.intp), *np.divmod(d.texel_index, problem.texture.size)])
     if problem.uv is not None:
-        return surface_grid(np.concatenate([uv[m] for uv, m in zip(problem.uv, problem.masks)]))
+        return surface_grid(np.concatenate([masked(uv, m) for uv, m in zip(problem.uv, problem.masks)]))
     return np.concatenate(
         [np.column_stack([np.full(int(m.sum()), i), *np.nonzero(m)]) for i, m in enumerate(problem.masks)]
     ).astype(np.intp)

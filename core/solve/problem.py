@@ -25,6 +25,7 @@ import numpy as np
 
 from ..geometry.correspondences import Correspondences
 from ..geometry.texels import TextureLayout
+from ..masks import masked
 
 __all__ = ["Problem", "SUN_COLUMNS", "row_blocks", "stacked_rows"]
 
@@ -148,10 +149,10 @@ class Problem:
                 _fail(f"{v}: normals shape {nrm.shape}, expected {hw + (3,)}")
             if not mask.any():
                 _fail(f"{v}: the mask is empty (no pixel sees the surface)")
-            bad = ~np.isfinite(img[mask]).all(axis=1)
+            bad = ~np.isfinite(masked(img, mask)).all(axis=1)
             if bad.any():
                 _fail(f"{v}: {int(bad.sum())} pixels inside the mask are NaN or infinite")
-            nm = nrm[mask]
+            nm = masked(nrm, mask)
             if not np.isfinite(nm).all():
                 _fail(f"{v}: normals inside the mask are NaN or infinite")
             length = np.linalg.norm(nm, axis=1)
@@ -162,7 +163,7 @@ class Problem:
                 uv = self.uv[i] = np.asarray(self.uv[i], dtype=np.float32)
                 if uv.shape != hw + (2,):
                     _fail(f"{v}: uv shape {uv.shape}, expected {hw + (2,)}")
-                if not np.isfinite(uv[mask]).all():
+                if not np.isfinite(masked(uv, mask)).all():
                     _fail(f"{v}: uv inside the mask is NaN or infinite")
             if self.view_weight is not None:
                 w = self.view_weight[i] = np.asarray(self.view_weight[i], dtype=np.float32)

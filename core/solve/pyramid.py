@@ -14,6 +14,7 @@ import numpy as np
 
 from ..geometry.bilinear import interpolate, masked_corners
 from ..geometry.texels import bilinear_texels, parent_texels
+from ..masks import masked
 from .problem import Correspondences, Problem, TextureLayout
 
 __all__ = [
@@ -154,7 +155,7 @@ def supported_size(problem: Problem, texels_per_pixel: float) -> int:
         inside = problem.texture.inside if size == problem.texture.size else np.ones((size, size), bool)
         hit = np.zeros(size * size, dtype=bool)
         for uv, m in zip(problem.uv, problem.masks):
-            idx, w = bilinear_texels(uv[m], inside)
+            idx, w = bilinear_texels(masked(uv, m), inside)
             hit[idx[w > 0]] = True
         if np.count_nonzero(hit) <= texels_per_pixel * pixels:
             break

@@ -39,6 +39,7 @@ from ..geometry.raycast import Triangles
 from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index, texels_reached
 from ..geometry.transfer import shading_rows
 from ..io.photos import photo_pixels
+from ..masks import masked
 from ..parallel import resolve_threads, start, streamed, thread_map
 from ..progress import check_cancel
 from ..solve.highlights import clipped_regions, highlights
@@ -107,7 +108,12 @@ def view_shadings(sigma, normals, uvs, masks, cells=None, sun=None, positions=No
     def view(v):
         m = masks[v]
         return shading(
-            normals[v][m], uvs[v][m], sigma[v], cells, sun=sun, position=None if sun is None else positions[v][m]
+            masked(normals[v], m),
+            masked(uvs[v], m),
+            sigma[v],
+            cells,
+            sun=sun,
+            position=None if sun is None else masked(positions[v], m),
         )
 
     return thread_map(view, range(len(masks)), threads)
@@ -120,7 +126,7 @@ def shading_floors(shades, photos, masks) -> np.ndarray:
     (:func:`view_shadings`).
     """
     shade = np.concatenate(shades)
-    values = np.concatenate([p[m] for p, m in zip(photos, masks)])
+    values = np.concatenate([masked(p, m) for p, m in zip(photos, masks)])
     return np.array(
         [dark_floor_bounds(shade[:, c].astype(np.float64), values[:, c]) for c in range(shade.shape[1])],
         np.float64,
@@ -167,7 +173,8 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
     def own_albedo(v):
         photo, m = photos[v], masks[v]
         q = np.zeros(photo.shape, np.float32)
-        q[m] = photo[m] / _floored(shades[v].copy(), photo[m], floor)
+        values = masked(photo, m)
+        q[m] = values / _floored(shades[v].copy(), values, floor)
         return q
 
     own = thread_map(own_albedo, range(len(masks)), threads)
@@ -178,8 +185,8 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
 
     def error(v):
         m, uv = masks[v], uvs[v]
-        idx, w = bilinear_texels(uv[m], everywhere)
-        return _log_ratio(own[v][m], interpolate(flat, idx, w))
+        idx, w = bilinear_texels(masked(uv, m), everywhere)
+        return _log_ratio(masked(own[v], m), interpolate(flat, idx, w))
 
     errors = thread_map(error, range(len(masks)), threads)
     pooled = np.concatenate(errors) if errors else np.zeros(0)
@@ -187,7 +194,7 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
     agree = np.maximum((1.0 - np.minimum(pooled / scale, 1.0) ** 2) ** 2, _LEAST_AGREEMENT)
     region = None if clipped is None else clipped_regions(clipped, masks)
     if region is not None:
-        texel = np.concatenate([texel_index(uv[m], size) for uv, m in zip(uvs, masks)]).astype(np.int64)
+        texel = np.concatenate([texel_index(masked(uv, m), size) for uv, m in zip(uvs, masks)]).astype(np.int64)
         off = texel < 0  # a UV off the texture: a texel of its own, that no other view sees
         texel[off] = size * size + np.arange(np.count_nonzero(off))
         view = np.repeat(np.arange(len(masks)), [np.count_nonzero(m) for m in masks])

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..geometry.bilinear import clamped_corners, interpolate
 from ..geometry.texels import texel_of_uv
+from ..masks import masked
 
 __all__ = ["sample_texture"]
 
@@ -15,7 +16,7 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray, mask: np.ndarray) -> np.
     n = texture.shape[0]
     tex = np.asarray(texture, dtype=np.float32).reshape(n * n, -1)
     out = np.full(uv.shape[:2] + (tex.shape[1],), np.nan, dtype=np.float32)
-    y, x = texel_of_uv(uv[mask], n)
+    y, x = texel_of_uv(masked(uv, mask), n)
     idx, wts = clamped_corners(np.clip(x, 0, n - 1), np.clip(y, 0, n - 1), n, n)
     out[mask] = interpolate(tex, idx, wts, nan_as_zero=True)
     return out
