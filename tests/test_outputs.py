@@ -463,3 +463,26 @@ def test_outputs_larger_than_the_free_space_are_refused_before_anything_is_writt
         prepare_outputs(out, ["albedo.exr"], need_bytes=free * 2)
     assert not out.exists()
     prepare_outputs(out, ["albedo.exr"], need_bytes=1)
+
+
+@pytest.mark.parametrize("channels", [None, 1, 3])
+@pytest.mark.parametrize("zero_outside", [True, False])
+def test_rgba_made_in_blocks_of_rows_is_its_definition(monkeypatch, channels, zero_outside):
+    from core.io import outputs
+
+    rng = np.random.default_rng(2)
+    shape = (23, 17) if channels is None else (23, 17, channels)
+    values = (rng.random(shape) - 0.3).astype(np.float32)  # negative values too: -0.0 where zeroed, as before
+    values[rng.random(shape) > 0.8] = np.nan
+    values.flat[:3] = [np.inf, -np.inf, np.nan]
+    alpha = (rng.random((23, 17)) > 0.4).astype(np.float32)
+    grey = values.reshape(23, 17, -1)
+    colour = np.repeat(grey, 3, axis=2) if grey.shape[2] == 1 else grey
+    expect = np.nan_to_num(colour, nan=0.0, posinf=0.0, neginf=0.0)
+    if zero_outside:
+        expect = expect * (alpha != 0)[..., None]
+    monkeypatch.setattr(outputs, "_RGBA_ROWS", 5)  # several blocks, the last one short
+    got = outputs.rgba(values, alpha, zero_outside)
+    assert got.shape == (23, 17, 4) and got.dtype == np.float32
+    np.testing.assert_array_equal(got[..., :3].view(np.uint32), expect.astype(np.float32).view(np.uint32))
+    np.testing.assert_array_equal(got[..., 3], alpha)

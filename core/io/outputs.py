@@ -210,15 +210,25 @@ def rgba(values, alpha, zero_outside: bool = True) -> np.ndarray:
     v = np.asarray(values, dtype=np.float32)
     if v.ndim == 2:
         v = v[:, :, None]
-    if v.shape[2] == 1:
-        v = np.repeat(v, 3, axis=2)
     a = np.asarray(alpha, dtype=np.float32)
     out = np.empty(v.shape[:2] + (4,), dtype=np.float32)
-    out[..., :3] = np.nan_to_num(v[..., :3], nan=0.0, posinf=0.0, neginf=0.0)
-    if zero_outside:
-        out[..., :3] *= (a != 0)[..., None]
-    out[..., 3] = a
+
+    def rows(r0):  # a block of rows at a time, on every core: each block's arrays stay in the cache
+        r = slice(r0, r0 + _RGBA_ROWS)
+        block = v[r, :, :3]
+        colour = np.where(np.isfinite(block), block, np.float32(0))
+        if zero_outside:
+            colour *= (a[r] != 0)[..., None]
+        o = out[r]
+        o[..., :3] = colour  # grey (one channel) into R, G and B alike
+        o[..., 3] = a[r]
+
+    thread_map(rows, range(0, v.shape[0], _RGBA_ROWS))
     return out
+
+
+# Rows of :func:`rgba` made at a time.
+_RGBA_ROWS = 64
 
 
 # ---------------------------------------------------------------- checks
