@@ -171,3 +171,19 @@ def test_upsampling_on_the_grid_matches_a_bilinear_lookup_per_texel(n, size):
     assert fine_seen.any() and not fine_seen.all()
     np.testing.assert_allclose(fine[fine_seen], expect[fine_seen], atol=1e-6)
     assert np.all(np.isnan(fine[~fine_seen]))
+
+
+def test_upsampling_onto_a_texture_in_blocks_of_rows_gives_the_same_numbers(monkeypatch):
+    from core.solve import pyramid
+
+    rng = np.random.default_rng(8)
+    coarse = rng.random((13, 13, 3)).astype(np.float32)
+    coarse[rng.random((13, 13)) > 0.9] = np.nan
+    seen = rng.random((13, 13)) > 0.25
+    target = rng.random((40, 40)) > 0.3
+    whole = pyramid.upsample_onto(coarse, seen, target)  # one block: 40 rows < _UPSAMPLE_ROWS
+    monkeypatch.setattr(pyramid, "_UPSAMPLE_ROWS", 3)
+    blocks = pyramid.upsample_onto(coarse, seen, target)
+    np.testing.assert_array_equal(blocks[0].view(np.uint32), whole[0].view(np.uint32))  # NaN where unseen, too
+    np.testing.assert_array_equal(blocks[1], whole[1])
+    assert np.isfinite(whole[0][whole[1]]).all() and np.isnan(whole[0][~whole[1]]).all()

@@ -15,6 +15,7 @@ import numpy as np
 from ..geometry.bilinear import interpolate, masked_corners
 from ..geometry.texels import bilinear_texels, parent_texels
 from ..masks import masked
+from ..parallel import thread_map
 from .problem import Correspondences, Problem, TextureLayout
 
 __all__ = [
@@ -190,15 +191,26 @@ def upsample_onto(coarse: np.ndarray, seen: np.ndarray, target: np.ndarray):
     padded[:channels, 1:-1, 1:-1] = np.moveaxis(np.where(seen[..., None], np.nan_to_num(coarse), 0), -1, 0)
     padded[channels, 1:-1, 1:-1] = seen
     # Sums of weight x value, and of weight, over the seen corners: rows, then columns, a channel at a time.
-    both = np.empty((channels + 1, size, size), np.float32)
-    for k in range(channels + 1):
-        both[k] = _along(_along(padded[k], 0, size), 1, size)
-    den = both[channels]
+    rows = [_along(plane, 0, size) for plane in padded]  # (size, n + 2) each
     # Where the texel's own coarse texel was seen, it has at least a quarter of the weight: den > 0.
     fine_seen = seen_onto(seen, target)
-    scale = np.divide(1.0, den, out=np.full_like(den, np.nan), where=fine_seen)
-    both[:channels] *= scale
-    return np.ascontiguousarray(np.moveaxis(both[:channels], 0, -1)), fine_seen
+    out = np.empty((size, size, channels), np.float32)
+
+    def block(r0):  # the columns a block of rows at a time, on every core: each block stays in the cache
+        r = slice(r0, r0 + _UPSAMPLE_ROWS)
+        den = _along(rows[channels][r], 1, size)
+        scale = np.divide(1.0, den, out=np.full_like(den, np.nan), where=fine_seen[r])
+        for k in range(channels):
+            value = _along(rows[k][r], 1, size)
+            value *= scale
+            out[r, :, k] = value
+
+    thread_map(block, range(0, size, _UPSAMPLE_ROWS))
+    return out, fine_seen
+
+
+# Rows of :func:`upsample_onto`'s output made at a time.
+_UPSAMPLE_ROWS = 64
 
 
 def seen_onto(seen: np.ndarray, target: np.ndarray) -> np.ndarray:
