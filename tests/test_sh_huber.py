@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from core.geometry.transfer import sphere_directions
 from core.solve.huber import huber, majorant, mm_weight
@@ -82,3 +83,15 @@ def test_mm_weight_in_place_matches_the_definition():
     buf = x.copy()
     assert mm_weight(buf, 1e-3, out=buf) is buf
     np.testing.assert_array_equal(buf, expected)
+
+
+@pytest.mark.parametrize("order", [2, 3, 4])
+def test_the_sh_basis_as_planes_holds_the_same_numbers(order):
+    rng = np.random.default_rng(order)
+    n = rng.normal(size=(5, 7, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    rows = sh_basis(n.astype(np.float32), order=order)
+    planes = sh_basis(n.astype(np.float32), order=order, planes=True)
+    assert planes.shape == rows.shape == (5, 7, (order + 1) ** 2) and planes.dtype == rows.dtype
+    np.testing.assert_array_equal(planes, rows)
+    assert planes[..., 4].flags.c_contiguous  # each function's values in a row of their own

@@ -274,7 +274,7 @@ class OcclusionGrid:
             top *= gy
             top += np.multiply(below, fy, out=below)
             v[j] = top
-        s = sh_basis(normal, order=round(k**0.5) - 1) @ (sigma * open_factor(k).astype(np.float32)).T
+        s = sh_basis(normal, order=round(k**0.5) - 1, planes=True) @ (sigma * open_factor(k).astype(np.float32)).T
         valid = v[c] > 0
         for j in range(c):
             s[:, j] += np.divide(v[j], v[c], out=np.zeros(at.size, np.float32), where=valid)
@@ -388,7 +388,7 @@ def shading_rows(sigma, normal, uv=None, cells=None, sun=None, position=None) ->
     ``sigma`` ``(C, K)``, without the ``(P, K)`` transfer (:meth:`OcclusionGrid.shading`)."""
     sigma = np.asarray(sigma, np.float32)
     k = sigma.shape[1] - (sun is not None)
-    s = cells.shading(uv, normal, sigma[:, :k]) if cells is not None else sh_basis(normal) @ sigma[:, :k].T
+    s = cells.shading(uv, normal, sigma[:, :k]) if cells is not None else sh_basis(normal, planes=True) @ sigma[:, :k].T
     if sun is not None:
         s += sun.term(position, normal)[:, None] * sigma[:, k]
     return s
