@@ -265,12 +265,13 @@ class OcclusionGrid:
         fx, fy = (x - x0).astype(np.float32), (y - y0).astype(np.float32)
         gx, gy = 1 - fx, 1 - fy
         at = y0 * m + x0
+        right, down, across = at + 1, at + m, at + m + 1  # the other three corners, for every plane
         v = np.empty((c + 1, at.size), np.float32)
         for j, plane in enumerate(grid):  # (a (1 - fx) + b fx) (1 - fy) + (c (1 - fx) + d fx) fy
             top = np.take(plane, at) * gx
-            top += np.take(plane, at + 1) * fx
-            below = np.take(plane, at + m) * gx
-            below += np.take(plane, at + m + 1) * fx
+            top += np.take(plane, right) * fx
+            below = np.take(plane, down) * gx
+            below += np.take(plane, across) * fx
             top *= gy
             top += np.multiply(below, fy, out=below)
             v[j] = top
