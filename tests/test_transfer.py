@@ -178,4 +178,7 @@ def test_a_shadow_map_cast_for_a_few_points_tells_them_as_the_whole_map_does():
         whole, few = ShadowMap(w, tris, 256), ShadowMap(w, tris, 256, only=(p, n))
         assert np.isinf(few.depth).mean() > 0.95 > np.isinf(whole.depth).mean()  # most of it is not cast
         assert np.array_equal(few.open(p, n), whole.open(p, n))
+        assert np.array_equal(few.open_only(), whole.open(p, n))  # the lookup made for the cast, kept
+    with pytest.raises(ValueError, match="without only"):
+        whole.open_only()
     assert 0.1 < visibility(p, n, tris, sphere_directions(12, 0.1), resolution=256).mean() < 0.9

@@ -129,8 +129,9 @@ class ShadowMap:
         self.camera, self.pixel = _shadow_camera(self.direction, centre, radius, resolution)
         self.resolution, self.lift, self.bias = resolution, lift, bias
         pixels = None
+        self._only = None if only is None else self._lookup(*only)  # kept for open_only
         if only is not None:
-            read = self._lookup(*only)[0]
+            read = self._only[0]
             if read.size < _CAST_READ_SHARE * resolution * resolution:
                 pixels = np.zeros(resolution * resolution, bool)
                 pixels[read] = True
@@ -152,7 +153,15 @@ class ShadowMap:
 
     def open(self, points, normals) -> np.ndarray:
         """``(P,)`` bool: the points (lifted along their unit normals) that the map sees no geometry in front of."""
-        read, z = self._lookup(points, normals)
+        return self._open_at(*self._lookup(points, normals))
+
+    def open_only(self) -> np.ndarray:
+        """:meth:`open` of the ``only`` points the map was made for, from the lookup it made of them then."""
+        if self._only is None:
+            raise ValueError("ShadowMap.open_only: the map was made without only=(points, normals)")
+        return self._open_at(*self._only)
+
+    def _open_at(self, read, z):
         return self.depth[read] >= z - self.bias * self.pixel
 
 
@@ -187,7 +196,7 @@ def visibility(
     sphere = _bounding_sphere(tri_pos)
 
     def open_towards(w):
-        return ShadowMap(w, tri_pos, resolution, lift, bias, sphere, only=(pts, nrm)).open(pts, nrm)
+        return ShadowMap(w, tri_pos, resolution, lift, bias, sphere, only=(pts, nrm)).open_only()
 
     out = np.ones((pts.shape[0], len(directions)), dtype=bool)
     for k, col in enumerate(thread_map(open_towards, np.asarray(directions, np.float64), threads)):
