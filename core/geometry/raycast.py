@@ -169,13 +169,24 @@ def _vertex_boxes(camera, vv, corners):
     # As _bounds and _pixel_boxes work them out, with skew * Y/Z, zero, left out.
     x = fx * (vv[:, 0] / z) + cx
     y = fy * (vv[:, 1] / z) + cy
-    first = [np.clip(np.ceil(p - _MARGIN), 0, n).astype(np.int32) for p, n in ((x, w), (y, h))]
-    last = [np.clip(np.floor(p + _MARGIN), -1, n - 1).astype(np.int32) for p, n in ((x, w), (y, h))]
+    # A vertex's first column and row side by side, and its last: one gather of 8 bytes reads both.
+    first, last = np.empty((len(vv), 2), np.int32), np.empty((len(vv), 2), np.int32)
+    for k, (p, n) in enumerate(((x, w), (y, h))):
+        first[:, k] = np.clip(np.ceil(p - _MARGIN), 0, n)
+        last[:, k] = np.clip(np.floor(p + _MARGIN), -1, n - 1)
     f0, f1, f2 = corners  # contiguous: a strided column of faces reads all three columns' memory
-    c0, r0 = (np.minimum(np.minimum(a[f0], a[f1]), a[f2]) for a in first)
-    c1, r1 = (np.maximum(np.maximum(a[f0], a[f1]), a[f2]) for a in last)
+    lo, hi = (_corner_extreme(a.view(np.int64).ravel(), f0, f1, f2, op) for a, op in ((first, np.minimum), (last, np.maximum)))
+    (c0, r0), (c1, r1) = lo.T, hi.T
     nr = np.where(c1 >= c0, np.maximum(r1 - r0 + 1, 0), 0)
     return c0, c1, r0, nr
+
+
+def _corner_extreme(pairs, f0, f1, f2, op):
+    """``op`` over a triangle's three corners of each vertex's pair of int32 (packed as one int64), ``(T, 2)``."""
+    out = np.take(pairs, f0).view(np.int32).reshape(-1, 2)
+    op(out, np.take(pairs, f1).view(np.int32).reshape(-1, 2), out=out)
+    op(out, np.take(pairs, f2).view(np.int32).reshape(-1, 2), out=out)
+    return out
 
 
 def _bounds(vc, z_near):
@@ -264,7 +275,7 @@ def raycast(camera, tri_pos, batch=1_000_000, pixels=None) -> RayHits:
         if pixels is not None:
             keep = _holds_any(pixels.reshape(h, w), boxes)
             tris, boxes = tris[keep], [b[keep] for b in boxes]
-        vc = vc[tri_pos.faces[tris]] if shared else vc[tris]
+        vc = np.take(vc, np.take(tri_pos.faces, tris, axis=0) if shared else tris, axis=0)
         n_corner, vol = _edge_planes(vc)
         z_lo = np.maximum(np.minimum(np.minimum(vc[:, 0, 2], vc[:, 1, 2]), vc[:, 2, 2]), z_near)
         # A few pixels leave the depths elsewhere at inf, which hides nothing: one pass.
