@@ -174,18 +174,21 @@ def _vertex_boxes(camera, vv, corners):
     for k, (p, n) in enumerate(((x, w), (y, h))):
         first[:, k] = np.clip(np.ceil(p - _MARGIN), 0, n)
         last[:, k] = np.clip(np.floor(p + _MARGIN), -1, n - 1)
-    f0, f1, f2 = corners  # contiguous: a strided column of faces reads all three columns' memory
-    lo, hi = (_corner_extreme(a.view(np.int64).ravel(), f0, f1, f2, op) for a, op in ((first, np.minimum), (last, np.maximum)))
-    (c0, r0), (c1, r1) = lo.T, hi.T
+    (c0, r0), (c1, r1) = _corner_extreme(first, corners, np.minimum).T, _corner_extreme(last, corners, np.maximum).T
     nr = np.where(c1 >= c0, np.maximum(r1 - r0 + 1, 0), 0)
     return c0, c1, r0, nr
 
 
-def _corner_extreme(pairs, f0, f1, f2, op):
-    """``op`` over a triangle's three corners of each vertex's pair of int32 (packed as one int64), ``(T, 2)``."""
-    out = np.take(pairs, f0).view(np.int32).reshape(-1, 2)
-    op(out, np.take(pairs, f1).view(np.int32).reshape(-1, 2), out=out)
-    op(out, np.take(pairs, f2).view(np.int32).reshape(-1, 2), out=out)
+def _corner_extreme(pairs, corners, op):
+    """``op`` over each triangle's three corners of its vertices' ``(V, 2)`` int32 pairs, ``(T, 2)``.
+
+    ``corners`` is :attr:`Triangles.corners` (contiguous: a strided column of faces reads all three columns'
+    memory); each pair is read as one int64.
+    """
+    packed = pairs.view(np.int64).ravel()
+    out = np.take(packed, corners[0]).view(np.int32).reshape(-1, 2)
+    for c in corners[1:]:
+        op(out, np.take(packed, c).view(np.int32).reshape(-1, 2), out=out)
     return out
 
 
