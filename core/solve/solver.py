@@ -217,7 +217,7 @@ class SolverParams:
     albedo_lam: float | None = None
     albedo_adapt: bool = True
     light_size: int = 128
-    light_pixels: float = 128.0
+    light_pixels: float = 64.0
     light_balance: float = 0.5
     light_edges: float = 0.003
     light_tilts: int = 6
