@@ -3,12 +3,15 @@
 Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
 cores), into ``build/bench/unseen/`` (not kept in the repository)::
 
-    .venv/bin/python bench/unseen.py [--out DIR] [--only NAME ...]
+    .venv/bin/python bench/unseen.py [--out DIR] [--only NAME ...] [--resolution W H]
     .venv/bin/python bench/accuracy_quick.py --fixtures build/bench/unseen --texture-size 0 [--no-ceiling]
 
 The 13 fixtures chose the defaults; these check them on scenes they were not chosen on (the albedo stage's floor was
 chosen on the first 17 as well, and checked on the next five; the rule for clipped highlights was made on those 22,
 and checked on the last five, all with 8-bit photos and a Principled material; docs/measurements.md).
+``--resolution`` renders them larger: at 560x420 and 640x480 they have 68-102 photo pixels per texel on the
+lighting stage's 128² texture, more than the fixtures, as large captures have (the lighting stage's ``light_pixels``
+was checked on them).
 """
 
 from __future__ import annotations
@@ -437,10 +440,13 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default=os.path.join(ROOT, "build", "bench", "unseen"))
     p.add_argument("--only", nargs="*", choices=list(SCENES), help="scenes to make (default: all)")
+    p.add_argument(
+        "--resolution", nargs=2, type=int, metavar=("W", "H"), help="photo size (default: 256 192, the scenes' own)"
+    )
     args = p.parse_args(argv)
     for name in register(args.only):
         # Absolute: the scene's photo paths are made relative to the .blend, and a relative --out broke them.
-        fixtures.generate(name, os.path.abspath(args.out))
+        fixtures.generate(name, os.path.abspath(args.out), resolution=tuple(args.resolution or ()) or None)
         print("made", os.path.join(os.path.abspath(args.out), name), flush=True)
 
 
