@@ -444,9 +444,10 @@ def main(argv=None):
         "--resolution", nargs=2, type=int, metavar=("W", "H"), help="photo size (default: 256 192, the scenes' own)"
     )
     args = p.parse_args(argv)
+    resolution = tuple(args.resolution) if args.resolution else None
     for name in register(args.only):
         # Absolute: the scene's photo paths are made relative to the .blend, and a relative --out broke them.
-        fixtures.generate(name, os.path.abspath(args.out), resolution=tuple(args.resolution or ()) or None)
+        fixtures.generate(name, os.path.abspath(args.out), resolution=resolution)
         print("made", os.path.join(os.path.abspath(args.out), name), flush=True)
 
 

@@ -128,8 +128,8 @@ def pixels_per_texel(problem) -> float:
 def thinned_for_lighting(problem, most: float):
     """``problem`` at every other pixel of every other row, again, while it has more than ``most`` pixels per texel.
 
-    The lighting has a few coefficients per view: on scenes at 68-102 pixels per texel, thinned to 17-25 they
-    gave the same mean albedo error at a third of the time; at 10-16 some fixtures got worse (docs/measurements.md).
+    The lighting has a few coefficients per view: thinned to 17-25 pixels per texel it was as accurate as on all
+    of them, in less than half the time; at 10-16 some fixtures got worse (docs/measurements.md).
     """
     while pixels_per_texel(problem) > most:
         thin = coarsen(problem, texture=False)
