@@ -147,8 +147,9 @@ def solve_parts(options: Options, inputs) -> dict:
     if options.occlusion:
         parts["occlusion"] = 2.5 + 11.0 * triangles
     parts["problem"] = (4.0 + 30.0 * triangles if options.sun else 0.0) + 0.17 * texels
-    # The lighting stage's pixels are thinned beyond LIGHTING_PIXELS (on the mesh; about 11 MP of photo).
-    parts["lighting"] = max(4.1 * min(working, 11.5) - 6.0, 5.0)
+    # The lighting stage thins its pixels to at most 64 per texel of its 128² texture: past about 7 MP of photo
+    # its time stops growing (docs/measurements.md).
+    parts["lighting"] = max(4.1 * min(working, 7.0) - 6.0, 5.0)
     if options.albedo_lam is not None and not runs_detail(options, inputs):
         parts["albedo"] = 4.4 * _solved_texels(options, inputs)
     return parts
