@@ -44,7 +44,6 @@ def sh_basis(normals: np.ndarray, dtype=np.float32, order: int = 2, planes: bool
     normals = np.asarray(normals)
     # Each coordinate as a float64 array of its own: the products below read whole arrays.
     x, y, z = (normals[..., k].astype(np.float64) for k in range(3))
-    n = normals
     zz = z * z
     cols = [
         lambda: x,
@@ -81,11 +80,11 @@ def sh_basis(normals: np.ndarray, dtype=np.float32, order: int = 2, planes: bool
         ]
     # Each column computed in float64 and written into the result, one at a time: no (..., K) float64 stack.
     if planes:
-        out = np.empty((len(cols), *n.shape[:-1]), dtype)
+        out = np.empty((len(cols), *normals.shape[:-1]), dtype)
         for k, col in enumerate(cols):
             out[k] = col()
         return np.moveaxis(out, 0, -1)
-    out = np.empty((*n.shape[:-1], len(cols)), dtype)
+    out = np.empty((*normals.shape[:-1], len(cols)), dtype)
     for k, col in enumerate(cols):
         out[..., k] = col()
     return out
