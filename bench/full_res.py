@@ -1,4 +1,4 @@
-"""Large photos end to end: 13 x 1 MP, 13 x 12 MP and 50 x 24 MP, time and peak memory per stage.
+"""Large photos end to end: 13 x 1 MP, 13 x 12 MP, 50 x 24 MP and 150 x 12 MP, time and peak memory per stage.
 
 Run through ``bench/speed.py --case 13x1mp|13x12mp|50x24mp`` (by hand; the tests do not run it).
 
@@ -49,6 +49,7 @@ CASES = {
     "13x1mp": Case(13, (1152, 864), (1152, 864), 2, 8192),
     "13x12mp": Case(13, (1000, 750), (4000, 3000), 2, 4096),
     "50x24mp": Case(50, (600, 400), (6000, 4000), 3, 8192),
+    "150x12mp": Case(150, (500, 375), (4000, 3000), 2, 4096),
 }
 SAMPLES = 4
 BASE_TRIANGLES = 16384
@@ -171,8 +172,11 @@ class Monitor:
                 time.sleep(self.period)
 
 
-def run_case(name, work, json_path):
-    """Build (or reuse) the case's scene, run it, print and write the results."""
+def run_case(name, work, json_path, extra=()):
+    """Build (or reuse) the case's scene, run it, print and write the results.
+
+    ``extra``: more arguments of the headless run (``python -m blender_addon``), after the case's own.
+    """
     case = CASES[name]
     work = os.path.abspath(work)
     blend = build_scene(name, work)
@@ -181,7 +185,7 @@ def run_case(name, work, json_path):
     mon = Monitor()
     t = time.perf_counter()
     r = run_headless(
-        blend, os.path.join(work, name, "out"), "--object", "Subject", "--texture-size", case.texture, monitor=mon
+        blend, os.path.join(work, name, "out"), "--object", "Subject", "--texture-size", case.texture, *extra, monitor=mon
     )
     if r.returncode != 0:
         why = mon.stopped or f"the run failed:\n{r.log[-3000:]}"
@@ -199,6 +203,7 @@ def run_case(name, work, json_path):
         "working_size": cam["size"],
         "triangles": BASE_TRIANGLES * 4**case.levels,
         "texture": case.texture,
+        "extra_args": list(extra),
         "iterations": rep["iterations"],
         "detail": rep["solver_info"].get("detail"),
         "times_s": times,
@@ -230,7 +235,7 @@ def run_case(name, work, json_path):
     return result
 
 
-def main(name, work=None, json_path=None):
+def main(name, work=None, json_path=None, extra=()):
     work = work or os.path.join(ROOT, "build", "bench", "full_res")
     os.makedirs(work, exist_ok=True)
-    return run_case(name, work, json_path or os.path.join(ROOT, "bench", f"speed_{name}.json"))
+    return run_case(name, work, json_path or os.path.join(ROOT, "bench", f"speed_{name}.json"), extra)

@@ -4,7 +4,7 @@ Run by hand (not a test)::
 
     .venv/bin/python bench/speed.py [--work build/bench/speed] [--json bench/speed.json] [--method texture]
         [--threads N] [--scaling]
-    .venv/bin/python bench/speed.py --case 13x1mp|13x12mp|50x24mp
+    .venv/bin/python bench/speed.py --case 13x1mp|13x12mp|50x24mp|150x12mp [--case-args '--working-res 0.5']
 
 ``--case`` runs one of the large-photo cases of :mod:`bench.full_res` instead.
 
@@ -22,6 +22,7 @@ import argparse
 import datetime
 import json
 import os
+import shlex
 import subprocess
 import sys
 
@@ -145,14 +146,15 @@ def main(argv=None):
     p.add_argument(
         "--case",
         default="2k",
-        choices=["2k", "13x1mp", "13x12mp", "50x24mp"],
+        choices=["2k", "13x1mp", "13x12mp", "50x24mp", "150x12mp"],
         help="2k: this scene; the others: large photos (bench/full_res.py)",
     )
+    p.add_argument("--case-args", default="", help="more arguments of a --case's headless run, e.g. '--working-res 0.5'")
     a = p.parse_args(argv)
     if a.case != "2k":
         from bench.full_res import main as full_res
 
-        return full_res(a.case, a.work, a.json)
+        return full_res(a.case, a.work, a.json, shlex.split(a.case_args))
     a.work = a.work or os.path.join(ROOT, "build", "bench", "speed")
     a.json = a.json or os.path.join(ROOT, "bench", "speed.json")
     os.makedirs(a.work, exist_ok=True)

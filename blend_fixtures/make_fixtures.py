@@ -1689,7 +1689,7 @@ def generate(
     if mid is not None:
         bpy.data.meshes.remove(mid)
     mesh_record = _mesh_record(user_mesh, mesh_info, "fine")
-    _attach_photos(scene, [c["photo"] for c in cam_records], scene_dir)
+    _attach_photos(scene, {c["name"]: c["photo"] for c in cam_records}, scene_dir)
     blend_path = os.path.join(scene_dir, "scene.blend")
     _save_blend(blend_path)
 
@@ -1819,7 +1819,7 @@ def _generate_derived(name, spec, out_dir, reuse_base):
         cam_coll.objects.link(cobj)
         cobj.matrix_world = Matrix(c["matrix_world"])
     scene.camera = bpy.data.objects[b["cameras"][0]["name"]]
-    photos = ["../" + base + "/" + c["photo"] for c in b["cameras"]]
+    photos = {c["name"]: "../" + base + "/" + c["photo"] for c in b["cameras"]}
     _attach_photos(scene, photos, scene_dir)
     _save_blend(os.path.join(scene_dir, "scene.blend"))
 
@@ -1913,8 +1913,10 @@ def _mesh_record(me, info, which):
 
 
 def _attach_photos(scene, rel_photos, scene_dir):
-    cams = sorted([o for o in scene.objects if o.type == "CAMERA"], key=lambda o: o.name)
-    for cobj, rel in zip(cams, rel_photos):
+    """Each camera's photo as its background image; ``rel_photos``: camera name -> path relative to
+    ``scene_dir`` (by name: names sorted as strings put cam_100 before cam_11)."""
+    for name, rel in rel_photos.items():
+        cobj = scene.objects[name]
         path = os.path.normpath(os.path.join(scene_dir, rel))
         img = bpy.data.images.load(path, check_existing=False)
         img.name = os.path.basename(rel)

@@ -81,17 +81,40 @@ def test_user_file_has_mesh_cameras_photos_and_no_ground_truth(small_scene, mf):
     cams = _cameras(scene)
     assert len(cams) == N_CAMS == len(record["cameras"])
     assert (scene.render.resolution_x, scene.render.resolution_y) == RES
+    photo_of = {rec["name"]: rec["photo"] for rec in record["cameras"]}
     for cam in cams:
         assert cam.data.show_background_images
         assert len(cam.data.background_images) == 1
         img = cam.data.background_images[0].image
         assert img is not None and img.packed_file is None
-        assert img.filepath.startswith("//photos/"), img.filepath  # relative to the .blend
+        assert img.filepath == "//" + photo_of[cam.name], img.filepath  # its own photo, relative to the .blend
         path = bpy.path.abspath(img.filepath)
         assert os.path.isfile(path)
         assert tuple(img.size) == RES  # it loads, at the photo size
         assert img.has_data
         assert img.colorspace_settings.name == "Linear Rec.709"
+
+
+@needs_fixture_maker
+def test_photos_attached_by_camera_name(mf, tmp_path):
+    # Names sorted as strings put cam_100 before cam_11: each camera must still get its own photo.
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    names = ["cam_09", "cam_10", "cam_11", "cam_99", "cam_100", "cam_101"]
+    photos = {}
+    for i, name in enumerate(names):
+        scene.collection.objects.link(bpy.data.objects.new(name, bpy.data.cameras.new(name)))
+        img = bpy.data.images.new(f"made_{i}", 4, 3)
+        img.filepath_raw = str(tmp_path / "photos" / f"{name}.png")
+        img.file_format = "PNG"
+        os.makedirs(tmp_path / "photos", exist_ok=True)
+        img.save()
+        photos[name] = f"photos/{name}.png"
+    mf._attach_photos(scene, dict(reversed(list(photos.items()))), str(tmp_path))
+    for name in names:
+        img = scene.objects[name].data.background_images[0].image
+        assert os.path.basename(img.filepath) == f"{name}.png"
+    bpy.ops.wm.read_homefile(use_empty=True)
 
 
 @needs_fixture_maker
