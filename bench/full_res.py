@@ -185,7 +185,14 @@ def run_case(name, work, json_path, extra=()):
     mon = Monitor()
     t = time.perf_counter()
     r = run_headless(
-        blend, os.path.join(work, name, "out"), "--object", "Subject", "--texture-size", case.texture, *extra, monitor=mon
+        blend,
+        os.path.join(work, name, "out"),
+        "--object",
+        "Subject",
+        "--texture-size",
+        case.texture,
+        *extra,
+        monitor=mon,
     )
     if r.returncode != 0:
         why = mon.stopped or f"the run failed:\n{r.log[-3000:]}"

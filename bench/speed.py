@@ -149,7 +149,9 @@ def main(argv=None):
         choices=["2k", "13x1mp", "13x12mp", "50x24mp", "150x12mp"],
         help="2k: this scene; the others: large photos (bench/full_res.py)",
     )
-    p.add_argument("--case-args", default="", help="more arguments of a --case's headless run, e.g. '--working-res 0.5'")
+    p.add_argument(
+        "--case-args", default="", help="more arguments of a --case's headless run, e.g. '--working-res 0.5'"
+    )
     a = p.parse_args(argv)
     if a.case != "2k":
         from bench.full_res import main as full_res

@@ -228,6 +228,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
     mu: spec_property("mu")
     max_iter: spec_property("max_iter")
     working_res: spec_property("working_res_mp")
+    working_total: spec_property("working_total_mp")
     detail: spec_property("detail")
     texture_size: spec_property("texture_size")
     method: spec_property("method")
@@ -271,6 +272,7 @@ class DELIGHT_OT_run(bpy.types.Operator):
             mu=self.mu,
             max_iter=self.max_iter,
             working_res_mp=self.working_res,
+            working_total_mp=self.working_total,
             detail=self.detail,
             texture_size=self.texture_size,
             method=self.method,

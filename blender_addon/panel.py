@@ -40,6 +40,7 @@ class DelightSettings(bpy.types.PropertyGroup):
     mu: spec_property("mu", clamp=True)
     max_iter: spec_property("max_iter", clamp=True)
     working_res: spec_property("working_res_mp", clamp=True)
+    working_total: spec_property("working_total_mp", clamp=True)
     detail: spec_property("detail")
     texture_size: spec_property("texture_size", clamp=True)
     out_dir: spec_property("out_dir")
@@ -64,6 +65,7 @@ _SAME = (
     "mu",
     "max_iter",
     "working_res",
+    "working_total",
     "detail",
     "texture_size",
     "out_dir",
@@ -124,6 +126,7 @@ class VIEW3D_PT_delight(bpy.types.Panel):
             sub.prop(s, "mu")
         sub.prop(s, "max_iter")
         col.prop(s, "working_res")
+        col.prop(s, "working_total")
         row = col.row()
         row.active = s.method != "project"
         row.prop(s, "detail")

@@ -180,6 +180,7 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
         keep_full=photos.put if photos is not None else None,
         progress=stage_progress(progress, "gather"),
         threads=options.threads,
+        working_total_mp=options.working_total_mp,
     )
     # The bar's spans, now that the photos tell how long the stages will take.
     stages = schedule(options, inputs)
@@ -312,6 +313,7 @@ def _report_json(prepared, computed, files, times):
             "mu": opt.mu,
             "max_iter": opt.max_iter,
             "working_res_mp": opt.working_res_mp,
+            "working_total_mp": opt.working_total_mp,
             "detail": opt.detail,
             "texture_size": opt.texture_size,
             "images_dir": opt.images_dir,

@@ -14,7 +14,7 @@ import numpy as np
 from . import photos as _photos
 from .camera import to_core_camera
 from .core.errors import DelightError
-from .core.io.photos import downscale, working_size
+from .core.io.photos import downscale, photo_working_mp, working_size
 from .core.parallel import resolve_threads, start
 from .core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 
@@ -243,6 +243,7 @@ def gather(
     keep_full=None,
     progress=None,
     threads=None,
+    working_total_mp=None,
 ) -> SceneInputs:
     """Read the mesh, the cameras and their photos from the scene.
 
@@ -259,6 +260,9 @@ def gather(
     working_res_mp : float
         Photos larger than this many megapixels are area-averaged down to fit,
         and their cameras' intrinsics scaled to match. ``0`` or ``None``: keep.
+    working_total_mp : float, optional
+        With more photos than this many megapixels hold at ``working_res_mp`` each, each is brought down to its
+        share of it instead (:func:`core.io.photos.photo_working_mp`). ``0`` or ``None``: no limit.
     selected_only : bool
         Without ``camera_names``, take only the selected cameras.
     keep_full : callable(photo, clipped) -> load, optional
@@ -301,6 +305,10 @@ def gather(
     depsgraph = _depsgraph(scene, view_layer)
     mesh = mesh_arrays(obj, depsgraph)
     views, errors = [], []
+    per_photo = photo_working_mp(working_res_mp, working_total_mp, len(cams))
+    if per_photo != working_res_mp and progress is not None:
+        total = f"{working_total_mp:g} MP in all (working total)"
+        progress(0.0, f"{len(cams)} photos: each at most {per_photo:.2g} MP, {total}")
 
     def unusable(cam, exc):
         if not all_cameras:
@@ -325,7 +333,7 @@ def gather(
             if progress is not None:
                 progress(i / len(cams), f"reading the photo of {cam.name} ({i + 1}/{len(cams)})")
             try:
-                make = _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full)
+                make = _read_view(scene, depsgraph, cam, images_dir, per_photo, keep_full, working_res_mp)
             except DelightError as exc:
                 while at_work:  # the views stay in the cameras' order
                     settle()
@@ -344,11 +352,13 @@ def gather(
     return SceneInputs(object_name=obj.name, mesh=mesh, views=views, skipped=skipped)
 
 
-def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None):
+def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None, keep_above=None):
     """Blender's part of a view (main thread): its photo read and its cameras; returns ``make() -> ViewInput``.
 
     ``make`` is the NumPy part, for any thread: the photo converted, downscaled to the working resolution and, if
-    downscaled, kept at its full resolution by ``keep_full``.
+    it is larger than ``keep_above`` megapixels (default: the working resolution), kept at its full resolution by
+    ``keep_full``. (A photo within the user's working resolution, downscaled only to keep the photos' total, has
+    no detail beyond it to restore.)
     """
     info = {}
     finish, (w, h), source = _photos.find_photo(scene, cam, images_dir, info)
@@ -356,7 +366,8 @@ def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None
     scale = (w2 / w, h2 / h) if (h2, w2) != (h, w) else (1.0, 1.0)
     matrix = cam.evaluated_get(depsgraph).matrix_world
     camera = to_core_camera(cam, scene, w, h, matrix_world=matrix, scale=scale)
-    full_camera = to_core_camera(cam, scene, w, h, matrix_world=matrix) if scale != (1.0, 1.0) else None
+    larger = working_size(h, w, working_res_mp if keep_above is None else keep_above) != (h, w)
+    full_camera = to_core_camera(cam, scene, w, h, matrix_world=matrix) if scale != (1.0, 1.0) and larger else None
     name = cam.name
 
     def make():
@@ -364,7 +375,7 @@ def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None
         photo = finish(coded=True)
         small = downscale(photo, working_res_mp)[0]
         clipped = full_clipped = info.get("clipped")
-        if clipped is not None and full_camera is not None:  # a working pixel is clipped if any photo pixel in it is
+        if clipped is not None and scale != (1.0, 1.0):  # a working pixel is clipped if any photo pixel in it is
             clipped = downscale(clipped[..., None].astype(np.float32), working_res_mp)[0][..., 0] > 0
         full = None
         if keep_full is not None and full_camera is not None:

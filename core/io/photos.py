@@ -10,6 +10,7 @@ from scipy import sparse
 __all__ = [
     "srgb_to_linear",
     "linear_to_srgb",
+    "photo_working_mp",
     "working_size",
     "downscale",
     "clipped_pixels",
@@ -49,6 +50,15 @@ def _area_matrix(n_in, n_out):
     ok = (overlap > 0) & (i < n_in)
     # float32 as the photos are: a float64 matrix would make scipy copy each photo to float64 first (5x slower).
     return sparse.csr_matrix((overlap[ok].astype(np.float32), (j[ok], i[ok])), shape=(n_out, n_in))
+
+
+def photo_working_mp(per_photo, total, n_photos):
+    """The megapixels each of ``n_photos`` photos is downscaled to at most: ``per_photo``, less where the photos
+    together would exceed ``total`` (``None`` or ``0``: no limit, as for ``per_photo``)."""
+    if not total or total <= 0 or n_photos < 1:
+        return per_photo
+    share = total / n_photos
+    return share if per_photo is None or per_photo <= 0 or share < per_photo else per_photo
 
 
 def working_size(h, w, max_mp):

@@ -32,6 +32,7 @@ OPERATOR = {
     "mu": "mu",
     "max_iter": "max_iter",
     "working_res": "working_res_mp",
+    "working_total": "working_total_mp",
     "detail": "detail",
     "texture_size": "texture_size",
     "method": "method",
@@ -55,6 +56,7 @@ BAD = [
     (dict(auto_lambda=False, lam=math.nan), ["--lambda", "nan"], "lambda must be a finite number, got nan"),
     (dict(working_res=0.0), ["--working-res", "0"], "working resolution (MP) must be a number greater than 0, got 0"),
     (dict(max_iter=0), ["--max-iter", "0"], "iterations must be an integer of at least 1, got 0"),
+    (dict(working_total=-1.0), ["--working-total", "-1"], "working total (MP) must be a number of at least 0, got -1"),
 ]
 
 

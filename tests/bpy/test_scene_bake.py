@@ -307,6 +307,34 @@ def test_working_resolution_downscales_photo_and_camera(tmp_path):
     np.testing.assert_allclose(out, img.reshape(4, 2, 3, 2, 3).mean(axis=(1, 3)), atol=1e-6)
 
 
+def test_the_working_total_shares_its_megapixels_among_the_photos(tmp_path):
+    scene = set_render(300, 200)
+    bpy.context.view_layer.objects.active = add_uv_sphere()
+    for k in range(4):
+        cam = add_camera(f"t_cam{k}", (5.0, 1.0 + k, 0.5))
+        set_background(cam, make_image(f"t{k}", synth_photo(300, 200)))
+    messages = []
+    capped = gather(scene, working_res_mp=0.03, working_total_mp=0.04, progress=lambda f, m: messages.append(m))
+    # 4 photos of 60000 px: 0.03 MP each would make 0.12 MP, so each gets 0.01 MP.
+    assert [v.photo.shape[:2] for v in capped.views] == [(81, 122)] * 4
+    assert [(v.camera.width, v.camera.height) for v in capped.views] == [(122, 81)] * 4
+    assert any("each at most 0.01 MP, 0.04 MP in all (working total)" in m for m in messages), messages
+    # Photos within the working resolution have no detail beyond it: none is kept for the detail stage.
+    kept = gather(scene, working_res_mp=0.1, working_total_mp=0.04, keep_full=lambda photo, clipped: None).views
+    assert [v.photo.shape[:2] for v in kept] == [(81, 122)] * 4 and all(v.full is None for v in kept)
+    kept = gather(scene, working_res_mp=0.03, working_total_mp=0.04, keep_full=lambda photo, clipped: None).views
+    assert all(v.full is not None and v.full.camera.width == 300 for v in kept)
+    # Photos kept whole (no working resolution) are brought to the total as well.
+    assert [v.photo.shape[:2] for v in gather(scene, working_res_mp=None, working_total_mp=0.04).views] == [
+        (81, 122)
+    ] * 4
+    # A total the photos fit in, or none, leaves the working resolution as it is.
+    for total in (0.5, 0, None):
+        assert [v.photo.shape[:2] for v in gather(scene, working_res_mp=0.03, working_total_mp=total).views] == [
+            (141, 212)
+        ] * 4
+
+
 def test_a_downscaled_8bit_photo_is_kept_as_its_codes_and_a_float_one_as_floats(tmp_path):
     scene = set_render(300, 200)
     bpy.context.view_layer.objects.active = add_uv_sphere()
