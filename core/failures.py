@@ -52,7 +52,8 @@ def failure_message(exc: BaseException, front: str = "cli") -> str:
     if isinstance(exc, MemoryError):
         if front == "core":
             return "out of memory: solve a smaller bundle (fewer or smaller photos, a smaller texture)"
-        return f"out of memory: lower {_setting('working_res_mp', front)} or {_setting('texture_size', front)}"
+        lower = (_setting(name, front) for name in ("working_res_mp", "working_total_mp", "texture_size"))
+        return "out of memory: lower {}, {} or {}".format(*lower)
     if isinstance(exc, (DelightError, ValueError)):
         return str(exc)
     if isinstance(exc, OSError):

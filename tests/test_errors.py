@@ -29,9 +29,12 @@ def test_out_of_memory_names_the_settings_to_lower():
     exc = MemoryError()
     assert (
         failure_message(exc, "cli")
-        == "out of memory: lower the working resolution (--working-res) or the texture size (--texture-size)"
+        == "out of memory: lower the working resolution (--working-res), the working total (--working-total) or the "
+        "texture size (--texture-size)"
     )
-    assert failure_message(exc, "panel") == "out of memory: lower the Working resolution (MP) or the Texture size (px)"
+    assert failure_message(exc, "panel") == (
+        "out of memory: lower the Working resolution (MP), the Working total (MP) or the Texture size (px)"
+    )
     assert "smaller bundle" in failure_message(exc, "core")
     with pytest.raises(MemoryError) as info:  # numpy's own kind says the same
         np.empty(2**62, dtype=np.uint8)

@@ -343,7 +343,10 @@ def test_a_camera_without_photo_fails_cleanly(tmp_path):
     [
         (
             MemoryError(),
-            ("error: out of memory: lower the working resolution (--working-res) or the texture size (--texture-size)"),
+            (
+                "error: out of memory: lower the working resolution (--working-res), the working total "
+                "(--working-total) or the texture size (--texture-size)"
+            ),
         ),
         (RuntimeError("boom"), "error: unexpected RuntimeError: boom (run with --debug for the traceback)"),
     ],

@@ -327,7 +327,12 @@ def test_adjust_last_operation_reruns_with_the_changed_setting(tmp_path):
     "exc,message,traceback_on_console",
     [
         (RuntimeError("boom"), "Delight: unexpected RuntimeError: boom (the traceback is in the system console)", True),
-        (MemoryError(), "Delight: out of memory: lower the Working resolution (MP) or the Texture size (px)", False),
+        (
+            MemoryError(),
+            "Delight: out of memory: lower the Working resolution (MP), the Working total (MP) or the "
+            "Texture size (px)",
+            False,
+        ),
         (
             PermissionError(errno.EACCES, "Permission denied", "/some/photo.exr"),
             "Delight: /some/photo.exr: permission denied",
