@@ -50,27 +50,40 @@ class SunSearch:
     scores: np.ndarray  # (K,) their correlations
 
 
-def _pairs(photos, masks, positions, normals, step):
-    """Neighbouring masked pixels (right and down) on every ``step``-th row and column of each photo.
+def _pairs(photos, masks, positions, normals, step, max_pairs=0):
+    """Neighbouring masked pixels (right and down) on every ``step``-th row and column of each photo; with
+    ``max_pairs``, every k-th of them in that order, no more than that many.
 
     Returns the points and normals of both ends, stacked (first ends, then second ends), and the change of
-    log luminance from the first to the second, clipped to +-1.
+    log luminance from the first to the second, clipped to +-1. Only the pairs kept are read from the photos.
     """
+    found = []  # per photo and direction: the first ends' rows and columns, and the step to the second
+    for mask in masks:
+        h, w = mask.shape
+        r, c = (a.ravel() for a in np.mgrid[0 : h - 1 : step, 0 : w - 1 : step])
+        for dr, dc in ((0, 1), (1, 0)):
+            ok = mask[r, c] & mask[r + dr, c + dc]
+            found.append((r[ok], c[ok], dr, dc))
+    n = sum(r0.size for r0, _, _, _ in found)
+    stride = -(-n // max_pairs) if max_pairs and n > max_pairs else 1
     ends, dlog = [[], [], [], []], []
 
     def log_lum(photo, r, c):  # at the pairs' ends only, not over the whole photo
         lum = np.asarray(photo[r, c], np.float64)[:, :3].mean(axis=-1)
         return np.log(np.maximum(lum, 1e-3))
 
-    for photo, mask, pos, nrm in zip(photos, masks, positions, normals):
-        h, w = mask.shape
-        r, c = (a.ravel() for a in np.mgrid[0 : h - 1 : step, 0 : w - 1 : step])
-        for dr, dc in ((0, 1), (1, 0)):
-            ok = mask[r, c] & mask[r + dr, c + dc]
-            r0, c0, r1, c1 = r[ok], c[ok], r[ok] + dr, c[ok] + dc
-            for k, a in enumerate((pos[r0, c0], nrm[r0, c0], pos[r1, c1], nrm[r1, c1])):
-                ends[k].append(a)
-            dlog.append(log_lum(photo, r1, c1) - log_lum(photo, r0, c0))
+    first = 0  # the index, over all pairs, of this block's first
+    for k, (r0, c0, dr, dc) in enumerate(found):
+        v = k // 2
+        if stride > 1:  # the global every stride-th pair, from 0
+            at = np.arange(-first % stride, r0.size, stride)
+            first += r0.size
+            r0, c0 = r0[at], c0[at]
+        r1, c1 = r0 + dr, c0 + dc
+        pos, nrm = positions[v], normals[v]
+        for j, a in enumerate((pos[r0, c0], nrm[r0, c0], pos[r1, c1], nrm[r1, c1])):
+            ends[j].append(a)
+        dlog.append(log_lum(photos[v], r1, c1) - log_lum(photos[v], r0, c0))
     p0, n0, p1, n1 = (np.concatenate(e).astype(np.float64) for e in ends)
     return np.concatenate([p0, p1]), np.concatenate([n0, n1]), np.clip(np.concatenate(dlog), -1.0, 1.0)
 
@@ -133,17 +146,10 @@ def find_sun(
     threads : int or None
         As :func:`core.geometry.transfer.visibility`.
     """
-    points, nrm, dlog = _pairs(photos, masks, positions, normals, step)
+    # Every k-th pair at most max_pairs: the cost is pairs x directions.
+    points, nrm, dlog = _pairs(photos, masks, positions, normals, step, max_pairs)
     if dlog.size == 0:
         raise SunNotFound("sun search: no two neighbouring pixels on the mesh in any photo")
-    if max_pairs and dlog.size > max_pairs:  # every k-th pair: the cost is pairs x directions
-        keep = np.arange(0, dlog.size, -(-dlog.size // max_pairs))
-        n = dlog.size
-        points, nrm, dlog = (
-            np.concatenate([points[keep], points[n + keep]]),
-            np.concatenate([nrm[keep], nrm[n + keep]]),
-            dlog[keep],
-        )
     dirs = sphere_directions(n_directions)
     scores = _correlations(points, nrm, dlog, tri_pos, dirs, resolution, threads)
     spacing = np.sqrt(4 * np.pi / n_directions)
