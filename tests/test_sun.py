@@ -5,7 +5,7 @@ import pytest
 
 from core.geometry.camera import Camera
 from core.geometry.raycast import raycast
-from core.geometry.sun import find_sun
+from core.geometry.sun import _pairs, find_sun
 from core.geometry.transfer import visibility
 
 SUN = np.array([0.5, -0.4, 0.77]) / np.linalg.norm([0.5, -0.4, 0.77])
@@ -85,6 +85,25 @@ def test_a_quarter_of_the_pairs_still_finds_it(scene):
     # 3768 pairs here; every 4th keeps 942 of them, each still with both of its own ends.
     found = find_sun(*_views(scene, 1.5), scene, n_directions=200, max_pairs=1000)
     assert np.degrees(np.arccos(np.clip(found.direction @ SUN, -1, 1))) < 6.0
+
+
+def test_at_most_max_pairs_are_every_kth_of_all_pairs_in_order():
+    rng = np.random.default_rng(5)
+    shapes = [(37, 52), (61, 44), (50, 50)]
+    masks = [rng.random(s) < 0.7 for s in shapes]
+    photos, positions, normals = ([rng.random((*s, 3)).astype(np.float32) for s in shapes] for _ in range(3))
+    points, nrm, dlog = _pairs(photos, masks, positions, normals, 3)
+    n = dlog.size
+    for most in (50, 97, n - 1):
+        keep = np.arange(0, n, -(-n // most))
+        got = _pairs(photos, masks, positions, normals, 3, most)
+        assert got[2].size <= most
+        np.testing.assert_array_equal(got[0], np.concatenate([points[keep], points[n + keep]]))
+        np.testing.assert_array_equal(got[1], np.concatenate([nrm[keep], nrm[n + keep]]))
+        np.testing.assert_array_equal(got[2], dlog[keep])
+    assert all(
+        np.array_equal(a, b) for a, b in zip(_pairs(photos, masks, positions, normals, 3, n), (points, nrm, dlog))
+    )
 
 
 def test_no_pairs_is_a_clear_error(scene):
