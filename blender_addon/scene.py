@@ -333,7 +333,7 @@ def gather(
             if progress is not None:
                 progress(i / len(cams), f"reading the photo of {cam.name} ({i + 1}/{len(cams)})")
             try:
-                make = _read_view(scene, depsgraph, cam, images_dir, per_photo, keep_full, working_res_mp)
+                make = _read_view(scene, depsgraph, cam, images_dir, per_photo, working_res_mp, keep_full)
             except DelightError as exc:
                 while at_work:  # the views stay in the cameras' order
                     settle()
@@ -352,13 +352,13 @@ def gather(
     return SceneInputs(object_name=obj.name, mesh=mesh, views=views, skipped=skipped)
 
 
-def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None, keep_above=None):
+def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_above, keep_full=None):
     """Blender's part of a view (main thread): its photo read and its cameras; returns ``make() -> ViewInput``.
 
-    ``make`` is the NumPy part, for any thread: the photo converted, downscaled to the working resolution and, if
-    it is larger than ``keep_above`` megapixels (default: the working resolution), kept at its full resolution by
-    ``keep_full``. (A photo within the user's working resolution, downscaled only to keep the photos' total, has
-    no detail beyond it to restore.)
+    ``make`` is the NumPy part, for any thread: the photo converted, downscaled to ``working_res_mp`` and, if it
+    is also larger than ``keep_above`` megapixels (the user's working resolution; ``None`` or ``0``: no limit),
+    kept at its full resolution by ``keep_full``. (A photo within the user's working resolution, downscaled only
+    to keep the photos' total, has no detail beyond it to restore.)
     """
     info = {}
     finish, (w, h), source = _photos.find_photo(scene, cam, images_dir, info)
@@ -366,7 +366,7 @@ def _read_view(scene, depsgraph, cam, images_dir, working_res_mp, keep_full=None
     scale = (w2 / w, h2 / h) if (h2, w2) != (h, w) else (1.0, 1.0)
     matrix = cam.evaluated_get(depsgraph).matrix_world
     camera = to_core_camera(cam, scene, w, h, matrix_world=matrix, scale=scale)
-    larger = working_size(h, w, working_res_mp if keep_above is None else keep_above) != (h, w)
+    larger = working_size(h, w, keep_above) != (h, w)
     full_camera = to_core_camera(cam, scene, w, h, matrix_world=matrix) if scale != (1.0, 1.0) and larger else None
     name = cam.name
 

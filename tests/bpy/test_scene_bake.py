@@ -324,10 +324,10 @@ def test_the_working_total_shares_its_megapixels_among_the_photos(tmp_path):
     assert [v.photo.shape[:2] for v in kept] == [(81, 122)] * 4 and all(v.full is None for v in kept)
     kept = gather(scene, working_res_mp=0.03, working_total_mp=0.04, keep_full=lambda photo, clipped: None).views
     assert all(v.full is not None and v.full.camera.width == 300 for v in kept)
-    # Photos kept whole (no working resolution) are brought to the total as well.
-    assert [v.photo.shape[:2] for v in gather(scene, working_res_mp=None, working_total_mp=0.04).views] == [
-        (81, 122)
-    ] * 4
+    # Photos kept whole (no working resolution) are brought to the total as well, and, all within it, kept
+    # for no detail stage.
+    whole = gather(scene, working_res_mp=None, working_total_mp=0.04, keep_full=lambda photo, clipped: None).views
+    assert [v.photo.shape[:2] for v in whole] == [(81, 122)] * 4 and all(v.full is None for v in whole)
     # A total the photos fit in, or none, leaves the working resolution as it is.
     for total in (0.5, 0, None):
         assert [v.photo.shape[:2] for v in gather(scene, working_res_mp=0.03, working_total_mp=total).views] == [
