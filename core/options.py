@@ -344,12 +344,21 @@ SPEC = (
     ),
     Option(
         "detail",
-        "bool",
-        True,
+        "choice",
+        "auto",
         "Full-resolution detail",
         "When the photos are larger than the working resolution, make the albedo again from each photo at its "
-        "full resolution, one photo at a time, under the lighting solved at the working resolution "
-        "(off: the albedo has the working resolution's detail)",
+        "full resolution, one photo at a time, under the lighting solved at the working resolution",
+        choices=(
+            (
+                "auto",
+                "Auto",
+                "Where the albedo has fine changes of colour (measured on the photos); where it is flat, solve it at "
+                "the working resolution instead, which takes more of the shading out",
+            ),
+            ("on", "On", "Whenever the photos are larger than the working resolution"),
+            ("off", "Off", "Never: the albedo has the working resolution's detail"),
+        ),
         flag="--detail",
     ),
     Option(

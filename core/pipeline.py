@@ -23,7 +23,7 @@ from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.pyramid import seen_onto
 from .solve.solver import SolverParams
-from .solve.stages import LIGHTING_SHARE, solve
+from .solve.stages import LIGHTING_SHARE, albedo_stage, colour_texture, lighting_stage, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
@@ -40,6 +40,8 @@ __all__ = [
     "expected_seconds",
     "solve_parts",
     "runs_detail",
+    "wants_detail",
+    "DETAIL_MIN_COLOUR_TEXTURE",
     "LIGHTING_PIXELS",
     "stage_progress",
     "check_cancel",
@@ -83,13 +85,28 @@ def _unclipped(mask, clipped):
 
 
 def uses_detail(options: Options) -> bool:
-    """Whether a run with ``options`` makes the albedo again from the full-resolution photos, if they are larger."""
-    return bool(options.detail) and options.method != "project"
+    """Whether a run with ``options`` may make the albedo again from the full-resolution photos, if they are
+    larger (with ``detail`` "auto", :func:`compute` decides from the photos' colour texture)."""
+    return options.detail != "off" and options.method != "project"
 
 
 def runs_detail(options: Options, inputs) -> bool:
-    """Whether a run with ``options`` on ``inputs`` has the detail stage: some photo is larger than its working copy."""
+    """Whether a run with ``options`` on ``inputs`` plans the detail stage: some photo is larger than its working
+    copy. With ``detail`` "auto" a flat albedo then goes without it (:func:`wants_detail`)."""
     return uses_detail(options) and any(v.full is not None for v in inputs.views)
+
+
+#: With ``detail`` "auto", the least colour texture of the photos (:func:`core.solve.stages.colour_texture`)
+#: that gets the detail stage. On a flatter albedo the albedo stage at the working resolution, whose TV weight
+#: is then strong (26 or more), takes out shading that the stage's per-pixel division keeps. Chosen by
+#: leave-one-scene-out over 21 scenes with photos larger than the working resolution (docs/measurements.md).
+DETAIL_MIN_COLOUR_TEXTURE = 0.042
+
+
+def wants_detail(options: Options, texture: float) -> bool:
+    """Whether a run that planned the detail stage keeps it, once its lighting stage has measured the photos'
+    colour texture ``texture`` (NaN for grey photos, which keep it)."""
+    return options.detail == "on" or not texture <= DETAIL_MIN_COLOUR_TEXTURE
 
 
 def _sizes(options: Options, inputs):
@@ -232,21 +249,35 @@ def _with_gains(inputs, gains):
     return replace(inputs, views=views)
 
 
-def _lighting_stage(problem, params, progress, cancel):
-    """The two-stage solve's lighting stage alone; its albedo as solved, in ``result.solved`` (the fuse scales
-    it up to the full texture, :func:`core.texture.fill.fill_scaled_up`), ``result.texture`` None.
+def _lighting_only(result, texture):
+    """The two-stage solve's lighting stage as the run's result, before the detail stage: its albedo as solved
+    in ``result.solved`` (the fuse scales it up to the full texture, :func:`core.texture.fill.fill_scaled_up`),
+    ``result.texture`` None.
 
-    With the detail stage the albedo is made again from the full photos, so the working resolution's albedo
-    stage would only give it a prior and a fallback: the lighting stage's albedo, scaled up, serves as well
-    (measured on the fixtures) and saves the albedo stage's time and memory. The problem's masks are thinned
-    to :data:`LIGHTING_PIXELS` (:func:`_thinned`) by the caller.
+    The detail stage makes the albedo again from the full photos, so the working resolution's albedo stage
+    would only give it a prior and a fallback: the lighting stage's albedo, scaled up, serves as well (measured
+    on the fixtures) and saves the albedo stage's time and memory. The problem's masks are thinned to
+    :data:`LIGHTING_PIXELS` (:func:`_thinned`) by the caller.
     """
-    from .solve.stages import lighting_stage
-
-    _, result = lighting_stage(problem, params, progress, cancel)
     result.solved, result.texture, result.seen = (result.texture, result.seen), None, None
     result.info["lighting_only"] = True
+    result.info["colour_texture"] = texture
     return result
+
+
+def _without_detail(options: Options, inputs, stages: dict):
+    """The bar's spans once a run that planned the detail stage goes without it (:func:`wants_detail`): the
+    albedo stage and the fuse share the bar from the solve's end to the detail stage's, as they are expected to
+    take (:func:`expected_seconds` with ``detail`` "off"). Returns the new spans and the albedo stage's span."""
+    plain = replace(options, detail="off")
+    parts = shares(
+        {"albedo": solve_parts(plain, inputs)["albedo"], "fuse": expected_seconds(plain, inputs)["fuse"]},
+        stages["solve"][1],
+        stages["detail"][1],
+    )
+    out = {k: v for k, v in stages.items() if k != "detail"}
+    out["fuse"] = parts["fuse"]
+    return out, parts["albedo"]
 
 
 #: The sun search's settings (core.geometry.sun.find_sun): 200 candidates on 128² shadow maps, at most 20 000
@@ -512,7 +543,42 @@ def compute(
         )
         (first, lit), (_, last) = parts["lighting"], parts["albedo"]
         if lighting_only:
-            result = _lighting_stage(problem, params, sub_progress(solve_progress, first, last), cancel)
+            t_light = time.perf_counter()
+            light_problem, lit_result = lighting_stage(
+                problem, params, sub_progress(solve_progress, first, last), cancel
+            )
+            texture = colour_texture(light_problem, lit_result.sigma)
+            if wants_detail(opt, texture):
+                result = _lighting_only(lit_result, texture)
+            else:
+                # A flat albedo: the albedo stage at the working resolution, on every pixel, in place of the detail.
+                detail = lighting_only = False
+                stages, span = _without_detail(opt, inputs, stages)
+                albedo_progress = sub_progress(progress, *span, "solve")
+                albedo_progress(
+                    0.0,
+                    f"detail stage: off, the albedo is flat (colour texture {texture:.3f}, detail from "
+                    f"{DETAIL_MIN_COLOUR_TEXTURE:g}); the albedo at the working resolution",
+                )
+                if light_masks is not solve_masks:
+                    light_masks = solve_masks
+                    transfer = None
+                    if cells is not None or sun is not None:
+                        transfer = _transfer(bakes, solve_masks, cells, sun, opt.threads)
+                    problem = replace(problem, masks=solve_masks, transfer=transfer)
+                result = albedo_stage(
+                    problem,
+                    light_problem,
+                    lit_result,
+                    params,
+                    sub_progress(albedo_progress, 0.0, 1.0, "albedo"),
+                    cancel,
+                    views=False,
+                    scale_up=False,
+                    started=t_light,
+                    texture=texture,
+                )
+            light_problem = lit_result = None
         else:
             # The two-stage solve's own shares of its bar redrawn to the parts'.
             points = [(0.0, first), (LIGHTING_SHARE, lit), (1.0, last)] if opt.albedo_lam is not None else None

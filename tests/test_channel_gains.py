@@ -126,8 +126,8 @@ def test_the_full_resolution_photos_are_scaled_too():
     bakes = [bake_view(v.camera, mesh) for v in plain.views]
     k = _balance([v.photo for v in plain.views], [b.mask for b in bakes])
     tinted = inputs_of((mesh, albedo, None, cams, [p * k for p in photos]), lambda i: (photos[i] * k, None))
-    a = compute(Options(texture_size=128, working_res_mp=0.02), plain, bakes)
-    b = compute(Options(texture_size=128, working_res_mp=0.02), tinted, bakes)
+    a = compute(Options(texture_size=128, working_res_mp=0.02, detail="on"), plain, bakes)
+    b = compute(Options(texture_size=128, working_res_mp=0.02, detail="on"), tinted, bakes)
     assert a.info["detail"] and b.info["detail"]
     seen = a.seen & b.seen
     rel = (b.albedo[seen] / k - a.albedo[seen]) / np.maximum(a.albedo[seen], 1e-6)

@@ -17,7 +17,7 @@ from core.geometry.camera import Camera
 from core.geometry.raycast import Triangles
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
-from core.pipeline import Options, compute, schedule, solve_parts
+from core.pipeline import DETAIL_MIN_COLOUR_TEXTURE, Options, compute, schedule, solve_parts, wants_detail
 from core.progress import shares, stage_of
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.solve.sh import sh_basis
@@ -99,6 +99,13 @@ def fine_albedo(seed=0):
     return np.repeat(np.repeat(blocks, 2, axis=0), 2, axis=1).astype(np.float32)
 
 
+def patch_albedo(seed=1):
+    """Colours on 8 x 8 patches: an albedo without fine changes of colour."""
+    rng = np.random.default_rng(seed)
+    blocks = rng.uniform(0.25, 0.85, size=(8, 8, 3))
+    return np.repeat(np.repeat(blocks, N // 8, axis=0), N // 8, axis=1).astype(np.float32)
+
+
 def render(cam, mesh, albedo, sigma):
     """The photo a renderer makes: the texture's bilinear lookup times the SH shading, 0 off the mesh."""
     b = bake_view(cam, mesh)
@@ -171,7 +178,7 @@ def test_bands_of_rows_bake_as_the_whole_view(scene):
 def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     albedo = scene[1]
     runs, bars = {}, {}
-    for detail in (False, True):
+    for detail in ("off", "on"):
         loads = Loads(scene[4])
         opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
         times = {}
@@ -180,7 +187,7 @@ def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
         bar = bars[detail] = []
         out = compute(opt, inputs, bakes, times, progress=lambda f, m="", bar=bar: bar.append((f, m)))
         runs[detail] = (out, loads, times)
-    (coarse, _, t0), (fine, loads, t1) = runs[False], runs[True]
+    (coarse, _, t0), (fine, loads, t1) = runs["off"], runs["on"]
     seen = coarse.seen & fine.seen
     assert seen.sum() > 0.4 * N * N
     e_coarse = scaled_rmse(coarse.albedo, albedo, seen)
@@ -197,6 +204,7 @@ def test_detail_recovers_the_fine_albedo_from_the_full_resolution_photos(scene):
     # within its share of the solve's span.
     for detail, bar in bars.items():
         opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
+        detail = detail == "on"
         stages = schedule(opt, inputs)
         assert [f for f, _ in bar] == sorted(f for f, _ in bar)
         assert {stage_of(m) for _, m in bar} == {"solve", "fuse", "detail"} - ({"detail"} if not detail else set())
@@ -430,6 +438,43 @@ def test_the_lighting_stage_takes_every_kth_pixel_beyond_its_budget():
     assert thin[0][::3, ::3].all() and not thin[0][1::3].any()  # k = 3: every third pixel of every third row
 
 
+def test_auto_detail_solves_a_flat_albedo_at_the_working_resolution_and_keeps_the_stage_for_a_fine_one(scene):
+    mesh, _, sigma, cams, _ = scene
+    flat = (mesh, patch_albedo(), sigma, cams, [render(c, mesh, patch_albedo(), sigma) for c in cams])
+    runs, bars = {}, {}
+    for kind, sc in (("flat", flat), ("fine", scene)):
+        for detail in ("auto", "on", "off"):
+            inputs = inputs_of(sc, Loads(sc[4]))
+            bakes = [bake_view(v.camera, mesh) for v in inputs.views]
+            bar = bars[kind, detail] = []
+            opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=detail)
+            runs[kind, detail] = compute(opt, inputs, bakes, progress=lambda f, m="", bar=bar: bar.append((f, m)))
+    # Flat: the albedo stage at the working resolution on every pixel, as with the stage off, to the bit.
+    auto, off = runs["flat", "auto"], runs["flat", "off"]
+    assert auto.info["colour_texture"] < DETAIL_MIN_COLOUR_TEXTURE and not auto.info["detail"]
+    np.testing.assert_array_equal(auto.albedo, off.albedo)
+    assert auto.info["albedo_lam"] == off.info["albedo_lam"] and runs["flat", "on"].info["detail"]
+    said = [m for _, m in bars["flat", "auto"] if "detail stage: off" in m]
+    assert said and "the albedo is flat" in said[0] and f"{auto.info['colour_texture']:.3f}" in said[0]
+    # Fine: the stage, as with it on, to the bit.
+    auto, on = runs["fine", "auto"], runs["fine", "on"]
+    assert auto.info["colour_texture"] > DETAIL_MIN_COLOUR_TEXTURE and auto.info["detail"]
+    np.testing.assert_array_equal(auto.albedo, on.albedo)
+    # The bar moves forward only; without the stage the albedo stage and the fuse take the planned detail
+    # stage's share, and the fuse ends where it would have ended.
+    inputs = inputs_of(flat, Loads(flat[4]))
+    planned = schedule(Options(texture_size=N, working_res_mp=WORKING_MP), inputs)
+    bar = bars["flat", "auto"]
+    assert [f for f, _ in bar] == sorted(f for f, _ in bar)
+    albedo = [f for f, m in bar if m.startswith("solve: albedo")]
+    assert albedo and min(albedo) >= planned["solve"][1] - 1e-9
+    assert not [m for _, m in bar if stage_of(m) == "detail"]
+    assert [f for f, m in bar if stage_of(m) == "fuse"][-1] == pytest.approx(planned["detail"][1])
+    # Grey photos have no colour texture (NaN): they keep the stage; "on" keeps it whatever the photos.
+    assert wants_detail(Options(), float("nan")) and wants_detail(Options(detail="on"), 0.0)
+    assert not wants_detail(Options(), 0.0)
+
+
 def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene):
     """With the option ``sun`` the detail stage divides by the same shading as the solve, sun term included."""
     albedo = scene[1]
@@ -437,7 +482,7 @@ def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene)
     for sun in (False, True):
         loads = Loads(scene[4])
         inputs = inputs_of(scene, loads)
-        opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail=True, sun=sun)
+        opt = Options(texture_size=N, working_res_mp=WORKING_MP, detail="on", sun=sun)
         out = compute(opt, inputs, [bake_view(v.camera, scene[0]) for v in inputs.views])
         errors[sun] = scaled_rmse(out.albedo, albedo, out.seen)
     assert out.info["sun"]["used"] and out.sigma.shape[2] == 10 and out.info["lighting_mode"] == "coupled"
@@ -456,7 +501,7 @@ def test_the_sun_is_searched_on_every_pixel_when_the_lighting_stage_is_thinned(s
     budget = on_mesh // 5  # every 3rd pixel of every 3rd row
     assert not core.pipeline._thinned([b.mask for b in bakes], budget)[0][1::3].any()
     monkeypatch.setattr(core.pipeline, "LIGHTING_PIXELS", budget)
-    out = compute(Options(texture_size=N, working_res_mp=WORKING_MP, detail=True, sun=True), inputs, bakes)
+    out = compute(Options(texture_size=N, working_res_mp=WORKING_MP, detail="on", sun=True), inputs, bakes)
     assert out.info["sun"]["used"], out.info["sun"]
 
 

@@ -46,6 +46,7 @@ __all__ = [
     "ALBEDO_LAMBDA",
     "LIGHTING_SHARE",
     "adapted_albedo_lam",
+    "albedo_stage",
     "colour_texture",
     "lighting_data_model",
     "lighting_stage",
@@ -455,22 +456,56 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
         lighting_progress = sub_progress(progress, 0.0, LIGHTING_SHARE, "lighting")
         light_problem, first = lighting_stage(problem, params, lighting_progress, cancel)
         builds = builds.result()
+    albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
+    return albedo_stage(
+        problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, started=t0
+    )
+
+
+def albedo_stage(
+    problem,
+    light_problem,
+    first,
+    params,
+    progress=None,
+    cancel=None,
+    views=True,
+    builds=None,
+    scale_up=True,
+    started=None,
+    texture=None,
+):
+    """Stage 2 of the two-stage solve: :func:`solve_albedo` on ``problem`` with ``params.albedo_lam`` (adapted
+    to the photos' :func:`colour_texture` with ``params.albedo_adapt``), under :func:`lighting_stage`'s
+    lighting ``first.sigma``; ``light_problem`` is the problem that stage was solved on.
+
+    ``started``: when the lighting stage began (:func:`time.perf_counter`), for its seconds in the summary;
+    ``texture``: the colour texture, if the caller measured it already.
+
+    Returns
+    -------
+    core.solve.solver.Result
+        With the lighting stage's summary in ``info["lighting_stage"]``.
+    """
+    t1 = time.perf_counter()
+    t0 = t1 if started is None else started
     first.views = None  # not needed: free them before the larger stage
-    texture = None
+    albedo_params = replace(params, lam=params.albedo_lam)
     if params.albedo_adapt and params.domain == "texture":
-        texture = colour_texture(light_problem, first.sigma)
+        if texture is None:
+            texture = colour_texture(light_problem, first.sigma)
         albedo_params = replace(albedo_params, lam=adapted_albedo_lam(params.albedo_lam, texture))
+    else:
+        texture = None
     light_pixels = sum(int(m.sum()) for m in light_problem.masks)
     light_problem = None  # its thinned photos too
-    t1 = time.perf_counter()
-    albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
-    if texture is not None:
-        albedo_progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
+    if texture is not None and progress is not None:
+        progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
     second = solve_albedo(
         problem,
         first.sigma,
         albedo_params,
-        progress=albedo_progress,
+        progress=progress,
         cancel=cancel,
         views=views,
         builds=builds,
