@@ -475,6 +475,27 @@ def test_auto_detail_solves_a_flat_albedo_at_the_working_resolution_and_keeps_th
     assert not wants_detail(Options(), 0.0)
 
 
+def test_auto_detail_solves_a_flat_albedo_on_at_most_its_budget_of_pixels(scene, monkeypatch):
+    """Beyond FLAT_ALBEDO_PIXELS the albedo stage of a flat albedo takes every k-th pixel of every k-th row: its
+    transfer (the sun's column too) made for those pixels, its texture no finer than they resolve."""
+    import core.pipeline
+
+    mesh, _, sigma, cams, _ = scene
+    albedo = patch_albedo()
+    flat = (mesh, albedo, sigma, cams, [render(c, mesh, albedo, sigma) for c in cams])
+    inputs = inputs_of(flat, Loads(flat[4]))
+    bakes = [bake_view(v.camera, mesh) for v in inputs.views]
+    opt = Options(texture_size=N, working_res_mp=WORKING_MP, sun=True)
+    whole = compute(opt, inputs, bakes)
+    budget = sum(int(b.mask.sum()) for b in bakes) // 5  # every 3rd pixel of every 3rd row
+    monkeypatch.setattr(core.pipeline, "FLAT_ALBEDO_PIXELS", budget)
+    thin = compute(opt, inputs, bakes)
+    assert not thin.info["detail"] and thin.info["sun"]["used"]
+    assert thin.info["solved_size"] < whole.info["solved_size"]
+    e_whole, e_thin = scaled_rmse(whole.albedo, albedo, whole.seen), scaled_rmse(thin.albedo, albedo, thin.seen)
+    assert np.all(e_thin < 1.5 * e_whole), (e_thin, e_whole)
+
+
 def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene):
     """With the option ``sun`` the detail stage divides by the same shading as the solve, sun term included."""
     albedo = scene[1]
