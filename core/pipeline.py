@@ -125,30 +125,31 @@ def _sizes(options: Options, inputs):
     return working, full, mp * len(inputs.mesh.tri_pos), mp * int(options.texture_size) ** 2
 
 
-def _solved_texels(options: Options, inputs) -> float:
+def _solved_texels(options: Options, inputs, flat: bool = False) -> float:
     """Millions of texels the albedo is solved on: no more than the pixels resolve (SolverParams'
     max_texels_per_pixel: 2 per pixel on the mesh, about 2/3 of the photo); before the detail stage, the
-    lighting stage's texture alone."""
+    lighting stage's texture alone; ``flat``: a flat albedo's, on at most :data:`FLAT_ALBEDO_PIXELS`."""
     working, _, _, texels = _sizes(options, inputs)
     if runs_detail(options, inputs):
         light_size = int((options.solver or {}).get("light_size", DEFAULTS.light_size))
         return min(texels, 1e-6 * light_size**2)
-    return min(texels, 1.3 * working)
+    return min(texels, 1.3 * working, 2e-6 * FLAT_ALBEDO_PIXELS if flat else np.inf)
 
 
-def expected_seconds(options: Options, inputs) -> dict:
+def expected_seconds(options: Options, inputs, flat: bool = False) -> dict:
     """Roughly how long each stage after the gather takes, from the run's sizes, in run order.
 
     Only the ratios count (:func:`core.progress.spans`); the seconds are of the machine they were fitted on
     (Intel Xeon, 2 cores: 13 photos of 0.5, 1 and 12 MP, 50 of 24 MP; docs/measurements.md). The bake and
     the photos' alignment go with the pixels and the triangles; the solve is :func:`solve_parts`; the fuse and
-    the writing go with the texels; the detail stage with the full-resolution pixels.
+    the writing go with the texels; the detail stage with the full-resolution pixels. ``flat``: as after
+    :func:`wants_detail` left the stage out, the albedo stage on at most :data:`FLAT_ALBEDO_PIXELS`.
     """
     working, full, triangles, texels = _sizes(options, inputs)
-    solved = _solved_texels(options, inputs)
+    solved = _solved_texels(options, inputs, flat)
     seconds = {
         "bake": 0.3 * working + 20.0 * triangles + 1.5,
-        "solve": sum(solve_parts(options, inputs).values()),
+        "solve": sum(solve_parts(options, inputs, flat).values()),
         "fuse": 0.6 * solved + 0.17 * texels,
     }
     if runs_detail(options, inputs):
@@ -157,11 +158,11 @@ def expected_seconds(options: Options, inputs) -> dict:
     return seconds
 
 
-def solve_parts(options: Options, inputs) -> dict:
+def solve_parts(options: Options, inputs, flat: bool = False) -> dict:
     """Roughly how long each part of the solve stage takes, as :func:`expected_seconds` (0 for a part the run
     does not have), in run order: the occlusion; the sun's search, then the problem's making (its transfer, the
     texture's layout); the lighting stage; the albedo stage. :func:`compute` draws each on its share of the
-    solve stage's bar.
+    solve stage's bar. ``flat`` as :func:`expected_seconds`'.
     """
     working, _, triangles, texels = _sizes(options, inputs)
     parts = {"occlusion": 0.0, "problem": 0.0, "lighting": 0.0, "albedo": 0.0}
@@ -175,7 +176,7 @@ def solve_parts(options: Options, inputs) -> dict:
     # its time stops growing (docs/measurements.md).
     parts["lighting"] = max(4.1 * min(working, 7.0) - 6.0, 5.0)
     if options.albedo_lam is not None and not runs_detail(options, inputs):
-        parts["albedo"] = 4.4 * _solved_texels(options, inputs)
+        parts["albedo"] = 4.4 * _solved_texels(options, inputs, flat)
     return parts
 
 
@@ -275,10 +276,13 @@ def _lighting_only(result, texture):
 def _without_detail(options: Options, inputs, stages: dict):
     """The bar's spans once a run that planned the detail stage goes without it (:func:`wants_detail`): the
     albedo stage and the fuse share the bar from the solve's end to the detail stage's, as they are expected to
-    take (:func:`expected_seconds` with ``detail`` "off"). Returns the new spans and the albedo stage's span."""
+    take (:func:`expected_seconds` of a flat albedo without it). Returns the new spans and the albedo stage's span."""
     plain = replace(options, detail="off")
     parts = shares(
-        {"albedo": solve_parts(plain, inputs)["albedo"], "fuse": expected_seconds(plain, inputs)["fuse"]},
+        {
+            "albedo": solve_parts(plain, inputs, flat=True)["albedo"],
+            "fuse": expected_seconds(plain, inputs, flat=True)["fuse"],
+        },
         stages["solve"][1],
         stages["detail"][1],
     )
