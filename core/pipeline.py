@@ -105,8 +105,8 @@ DETAIL_MIN_COLOUR_TEXTURE = 0.042
 
 #: With ``detail`` "auto" on a flat albedo, the most pixels on the mesh (all photos together) the albedo stage
 #: is solved on, every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and
-#: on the two large captures fewer pixels, solved on fewer texels, were both quicker and more accurate (13 x 12 MP:
-#: 0.0525 on all 4.0 M, 0.0465 on 1.0 M; 50 x 24 MP: 0.0867 on all 13.9 M, 0.0487 on 1.5 M; docs/measurements.md).
+#: on the large captures fewer pixels, solved on fewer texels, were both quicker and more accurate; on the
+#: fixtures' fewer pixels, every pixel counts (docs/measurements.md).
 FLAT_ALBEDO_PIXELS = 2_000_000
 
 
