@@ -553,6 +553,17 @@ def compute(
             )
         )
         (first, lit), (_, last) = parts["lighting"], parts["albedo"]
+
+        def flat_problem(light_problem, lighting):
+            """The problem on at most FLAT_ALBEDO_PIXELS for a flat albedo's stage (None: the problem as it is)."""
+            if not colour_texture(light_problem, lighting.sigma) <= DETAIL_MIN_COLOUR_TEXTURE:
+                return None
+            masks = _thinned(solve_masks, FLAT_ALBEDO_PIXELS)
+            if masks is light_masks:
+                return None
+            transfer = None if cells is None and sun is None else _transfer(bakes, masks, cells, sun, opt.threads)
+            return replace(problem, masks=masks, transfer=transfer)
+
         if lighting_only:
             t_light = time.perf_counter()
             light_problem, lit_result = lighting_stage(
@@ -571,14 +582,8 @@ def compute(
                     f"detail stage: off, the albedo is flat (colour texture {texture:.3f}, detail from "
                     f"{DETAIL_MIN_COLOUR_TEXTURE:g}); the albedo at the working resolution",
                 )
-                albedo_masks = _thinned(solve_masks, FLAT_ALBEDO_PIXELS)
-                if albedo_masks is not light_masks:
-                    transfer = None
-                    if cells is not None or sun is not None:
-                        transfer = _transfer(bakes, albedo_masks, cells, sun, opt.threads)
-                    problem = replace(problem, masks=albedo_masks, transfer=transfer)
                 result = albedo_stage(
-                    problem,
+                    flat_problem(light_problem, lit_result) or problem,
                     light_problem,
                     lit_result,
                     params,
@@ -598,7 +603,13 @@ def compute(
             # solved smaller is filled there, then scaled up (below).
             on_texels = opt.method == "texture"
             result = solve(
-                problem, params, progress=solve_report, cancel=cancel, views=not on_texels, scale_up=not on_texels
+                problem,
+                params,
+                progress=solve_report,
+                cancel=cancel,
+                views=not on_texels,
+                scale_up=not on_texels,
+                albedo_problem=flat_problem if on_texels else None,
             )
     times["solve"], peaks["solve"] = time.perf_counter() - t, peak_mb()
     check_cancel(cancel)

@@ -494,6 +494,10 @@ def test_auto_detail_solves_a_flat_albedo_on_at_most_its_budget_of_pixels(scene,
     assert thin.info["solved_size"] < whole.info["solved_size"]
     e_whole, e_thin = scaled_rmse(whole.albedo, albedo, whole.seen), scaled_rmse(thin.albedo, albedo, thin.seen)
     assert np.all(e_thin < 1.5 * e_whole), (e_thin, e_whole)
+    # Without the detail stage (the photos within the working resolution, or "off") the same rule holds.
+    off = compute(replace(opt, detail="off"), inputs, bakes)
+    assert off.info["solved_size"] == thin.info["solved_size"]
+    np.testing.assert_array_equal(off.albedo, thin.albedo)
 
 
 def test_the_detail_stage_shades_with_the_sun_term_when_the_solve_has_one(scene):

@@ -60,19 +60,25 @@ __all__ = [
 
 @blas_on_one_thread()
 def solve(
-    problem, params: SolverParams | None = None, progress=None, cancel=None, views: bool = True, scale_up: bool = True
+    problem,
+    params: SolverParams | None = None,
+    progress=None,
+    cancel=None,
+    views: bool = True,
+    scale_up: bool = True,
+    albedo_problem=None,
 ) -> Result:
     """Estimate the albedo and the lighting: in two stages when ``params.albedo_lam`` is set, else jointly.
 
-    The parameters are :func:`core.solve.solver.solve_joint`'s; returns :func:`solve_two_stage`'s result, or
-    :func:`core.solve.solver.solve_joint`'s.
+    The parameters are :func:`core.solve.solver.solve_joint`'s, and ``albedo_problem``
+    :func:`solve_two_stage`'s; returns :func:`solve_two_stage`'s result, or :func:`core.solve.solver.solve_joint`'s.
     """
     params = params or SolverParams()
     params.check()
     params = params.resolved()
     if params.albedo_lam is None:
         return solve_joint(problem, params, progress, cancel, views, scale_up)
-    return solve_two_stage(problem, params, progress, cancel, views, scale_up)
+    return solve_two_stage(problem, params, progress, cancel, views, scale_up, albedo_problem)
 
 
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
@@ -434,14 +440,15 @@ def lighting_stage(problem, params, progress=None, cancel=None):
 LIGHTING_SHARE = 0.6
 
 
-def solve_two_stage(problem, params, progress=None, cancel=None, views=True, scale_up=True):
+def solve_two_stage(problem, params, progress=None, cancel=None, views=True, scale_up=True, albedo_problem=None):
     """Lighting with a strong TV weight, then the albedo under that lighting with a weak one.
 
     Stage 1 is :func:`core.solve.solver.solve` with ``params`` (TV weight
     ``lam``, lighting model ``params.lighting``), on a texture of at most
     ``params.light_size`` (the lighting has 9 coefficients; it needs no fine
     texels). Stage 2 is :func:`solve_albedo` with ``params.albedo_lam`` on the
-    full problem.
+    full problem, or on ``albedo_problem(light_problem, first)`` where that callable gives another (stage 1's
+    problem and result; None: the same).
 
     Returns
     -------
@@ -456,6 +463,9 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
         lighting_progress = sub_progress(progress, 0.0, LIGHTING_SHARE, "lighting")
         light_problem, first = lighting_stage(problem, params, lighting_progress, cancel)
         builds = builds.result()
+    other = albedo_problem(light_problem, first) if albedo_problem is not None else None
+    if other is not None and other is not problem:
+        problem, builds = other, None  # the starts were built for the other problem
     albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
     return albedo_stage(
         problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, started=t0
