@@ -103,8 +103,8 @@ def runs_detail(options: Options, inputs) -> bool:
 DETAIL_MIN_COLOUR_TEXTURE = 0.042
 
 
-#: With ``detail`` "auto" on a flat albedo, the most pixels on the mesh (all photos together) the albedo stage
-#: is solved on, every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and
+#: On a flat albedo (a colour texture of at most DETAIL_MIN_COLOUR_TEXTURE), the most pixels on the mesh (all
+#: photos together) the Texture method's albedo stage is solved on, with or without the detail stage planned, every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and
 #: on the large captures fewer pixels, solved on fewer texels, were both quicker and more accurate; on the
 #: fixtures' fewer pixels, every pixel counts (docs/measurements.md).
 FLAT_ALBEDO_PIXELS = 2_000_000
