@@ -104,9 +104,10 @@ DETAIL_MIN_COLOUR_TEXTURE = 0.042
 
 
 #: On a flat albedo (a colour texture of at most DETAIL_MIN_COLOUR_TEXTURE), the most pixels on the mesh (all
-#: photos together) the Texture method's albedo stage is solved on, with or without the detail stage planned, every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and
-#: on the large captures fewer pixels, solved on fewer texels, were both quicker and more accurate; on the
-#: fixtures' fewer pixels, every pixel counts (docs/measurements.md).
+#: photos together) the Texture method's albedo stage is solved on, with or without the detail stage planned,
+#: every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and on the large
+#: captures fewer pixels, solved on fewer texels, were both quicker and more accurate; on the fixtures' fewer
+#: pixels, every pixel counts (docs/measurements.md).
 FLAT_ALBEDO_PIXELS = 2_000_000
 
 
