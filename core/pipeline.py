@@ -41,6 +41,7 @@ __all__ = [
     "solve_parts",
     "runs_detail",
     "wants_detail",
+    "flat_albedo",
     "DETAIL_MIN_COLOUR_TEXTURE",
     "LIGHTING_PIXELS",
     "stage_progress",
@@ -111,10 +112,15 @@ DETAIL_MIN_COLOUR_TEXTURE = 0.042
 FLAT_ALBEDO_PIXELS = 2_000_000
 
 
+def flat_albedo(texture: float) -> bool:
+    """Whether the photos' colour texture ``texture`` says the albedo is flat (NaN, grey photos: not)."""
+    return texture <= DETAIL_MIN_COLOUR_TEXTURE
+
+
 def wants_detail(options: Options, texture: float) -> bool:
     """Whether a run that planned the detail stage keeps it, once its lighting stage has measured the photos'
     colour texture ``texture`` (NaN for grey photos, which keep it)."""
-    return options.detail == "on" or not texture <= DETAIL_MIN_COLOUR_TEXTURE
+    return options.detail == "on" or not flat_albedo(texture)
 
 
 def _sizes(options: Options, inputs):
@@ -555,9 +561,9 @@ def compute(
         )
         (first, lit), (_, last) = parts["lighting"], parts["albedo"]
 
-        def flat_problem(light_problem, lighting):
+        def flat_problem(texture):
             """The problem on at most FLAT_ALBEDO_PIXELS for a flat albedo's stage (None: the problem as it is)."""
-            if not colour_texture(light_problem, lighting.sigma) <= DETAIL_MIN_COLOUR_TEXTURE:
+            if not flat_albedo(texture):
                 return None
             masks = _thinned(solve_masks, FLAT_ALBEDO_PIXELS)
             if masks is light_masks:
@@ -584,7 +590,7 @@ def compute(
                     f"{DETAIL_MIN_COLOUR_TEXTURE:g}); the albedo at the working resolution",
                 )
                 result = albedo_stage(
-                    flat_problem(light_problem, lit_result) or problem,
+                    flat_problem(texture) or problem,
                     light_problem,
                     lit_result,
                     params,

@@ -108,7 +108,9 @@ def test_check_refuses_non_numbers_and_fractional_integers():
 
 
 def _parser_actions(parser, names):
-    actions = {a.dest: a for a in parser._actions}
+    actions = {}
+    for a in parser._actions:  # the first for a dest: the spec's (an old flag's alias comes after)
+        actions.setdefault(a.dest, a)
     return {n: actions[n] for n in names}
 
 
@@ -154,6 +156,13 @@ def test_addon_command_line_defaults_are_the_options_defaults():
     opts = options_from_args(args)
     assert opts.lam is None and opts.texture_size == 3 and opts.working_res_mp == 0.5
     assert opts.camera_names == ["a", "b"] and opts.save_blend
+
+
+def test_the_old_no_detail_flag_still_turns_the_detail_stage_off():
+    parser = addon_parser(with_blend=True)
+    assert options_from_args(parser.parse_args(["scene.blend", "--no-detail"])).detail == "off"
+    assert options_from_args(parser.parse_args(["scene.blend", "--detail", "on"])).detail == "on"
+    assert "--no-detail" not in parser.format_help()
 
 
 @pytest.mark.parametrize("name, value, message", [b for b in BAD if b[0] in SOLVER_FIELDS])

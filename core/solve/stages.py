@@ -447,8 +447,8 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
     ``lam``, lighting model ``params.lighting``), on a texture of at most
     ``params.light_size`` (the lighting has 9 coefficients; it needs no fine
     texels). Stage 2 is :func:`solve_albedo` with ``params.albedo_lam`` on the
-    full problem, or on ``albedo_problem(light_problem, first)`` where that callable gives another (stage 1's
-    problem and result; None: the same).
+    full problem, or on ``albedo_problem(texture)`` where that callable gives another (``texture``: the photos'
+    :func:`colour_texture` under stage 1's lighting, NaN outside the texture domain; None: the same problem).
 
     Returns
     -------
@@ -463,12 +463,13 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
         lighting_progress = sub_progress(progress, 0.0, LIGHTING_SHARE, "lighting")
         light_problem, first = lighting_stage(problem, params, lighting_progress, cancel)
         builds = builds.result()
-    other = albedo_problem(light_problem, first) if albedo_problem is not None else None
+    texture = colour_texture(light_problem, first.sigma) if params.domain == "texture" else float("nan")
+    other = albedo_problem(texture) if albedo_problem is not None else None
     if other is not None and other is not problem:
         problem, builds = other, None  # the starts were built for the other problem
     albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
     return albedo_stage(
-        problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, started=t0
+        problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, t0, texture
     )
 
 
