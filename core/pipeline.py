@@ -77,6 +77,20 @@ def _layout(mesh, n):
     return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)
 
 
+#: The lighting stage's layout is rasterised at this many times its size (SolverParams.light_size), not
+#: coarsened from the texture's: a texture's islands are a texel wider than their triangles, so coarsened from
+#: a larger texture they lose texels at their borders, and the lighting, the colour texture and the albedo's
+#: weight moved with the texture size (photo_sun's weight halved from a 256² texture to a 1024²). Twice: the
+#: fixtures' 256², where the lighting stage was tuned.
+LIGHT_LAYOUT_FACTOR = 2
+
+
+def _layouts(mesh, n, light_size):
+    """The texture's layout, and the lighting stage's where the texture is larger than it (else None)."""
+    light = LIGHT_LAYOUT_FACTOR * light_size
+    return _layout(mesh, n), _layout(mesh, light) if 0 < light < n else None
+
+
 def _unclipped(mask, clipped):
     """The mask without the clipped pixels, unless that leaves nothing (or nothing is known)."""
     if clipped is None:
@@ -502,7 +516,8 @@ def compute(
     solve_progress(0.0, "building the problem")
     # The layout (one core) is made while the occlusion, the lighting's choice and the sun search use the others.
     # A run that fails or is cancelled before that waits for it: no thread outlives the run.
-    with joined(start(_layout, inputs.mesh, n, threads=opt.threads)) as layout_job:
+    light_size = int((opt.solver or {}).get("light_size", DEFAULTS.light_size)) if opt.method == "texture" else 0
+    with joined(start(_layouts, inputs.mesh, n, light_size, threads=opt.threads)) as layout_job:
         correspondences = None
         if opt.method == "image":
             from .geometry.correspondences import find_correspondences
@@ -539,10 +554,11 @@ def compute(
                 # On every pixel, not the lighting stage's thinned ones: the search compares neighbouring pixels.
                 sun, sun_info = _find_sun(photos, solve_masks, occluders, bakes, lighting, opt, problem_progress)
                 check_cancel(cancel)
-        layout = layout_job.result()
+        layout, light_layout = layout_job.result()
     check_cancel(cancel)
     if opt.method == "texture":
         problem = problem.on_layout(layout)
+        problem.light_texture = light_layout  # (on_layout's copy)
     if opt.method != "project":
         if cells is not None or sun is not None:
             problem = replace(problem, transfer=_transfer(bakes, light_masks, cells, sun, opt.threads))

@@ -598,3 +598,23 @@ def test_the_means_in_blocks_of_rows_are_those_of_the_whole_texture(monkeypatch,
     blocks = detail._mean(sums, base, prior, threads)
     np.testing.assert_array_equal(blocks[0], whole[0])
     np.testing.assert_array_equal(blocks[1], whole[1])
+
+
+def test_the_lighting_is_the_same_whatever_the_texture_size(scene):
+    # The lighting stage's layout is rasterised at a size of its own: coarsened from the texture's, a UV
+    # island's border texels (a texel wide at every size) came and went with the texture size, and the
+    # lighting, the colour texture and the albedo's weight with them.
+    mesh, _, _, cams, photos = scene
+    island = replace(mesh, tri_uv=(0.15 + 0.7 * mesh.tri_uv).astype(np.float32))
+    views, bakes = [], []
+    for i, (cam, photo) in enumerate(zip(cams, photos)):
+        small, _ = downscale(photo, WORKING_MP)
+        cam_small = resized(cam, small.shape[1], small.shape[0])
+        views.append(ViewInput(name=f"cam{i}", camera=cam_small, photo=small, source="test"))
+        bakes.append(bake_view(cam_small, island))
+    inputs = SceneInputs(object_name="band", mesh=island, views=views)
+    info = {n: compute(Options(texture_size=n, solver={"light_size": 32}), inputs, bakes).info for n in (128, 512)}
+    small, large = info[128], info[512]
+    assert small["lighting_stage"]["energy"] == pytest.approx(large["lighting_stage"]["energy"], rel=1e-9)
+    assert small["colour_texture"] == pytest.approx(large["colour_texture"], rel=1e-9)
+    assert small["albedo_lam"] == pytest.approx(large["albedo_lam"], rel=1e-9)

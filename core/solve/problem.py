@@ -101,6 +101,10 @@ class Problem:
         Pixels of 8-bit photos that clipped in some channel (:func:`core.io.photos.clipped_pixels`): their
         values are lower bounds of the light that reached the camera. None for a view (a float photo) or
         for all: none clipped.
+    light_texture : TextureLayout, optional
+        The layout the lighting stage coarsens to its own size (:func:`core.solve.stages.lighting_stage`),
+        rasterised at a size of its own so that the lighting does not depend on ``texture``'s. Default:
+        ``texture``.
     """
 
     images: list
@@ -113,6 +117,7 @@ class Problem:
     names: list = field(default_factory=list)
     transfer: list | None = None
     clipped: list | None = None
+    light_texture: TextureLayout | None = None
 
     def __post_init__(self):
         m = len(self.images)

@@ -395,7 +395,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
 
     Solved on a texture of at most ``params.light_size`` (the lighting has 9
-    coefficients per view and channel; it needs no fine texels) with the data
+    coefficients per view and channel; it needs no fine texels), coarsened from ``problem.light_texture``
+    where it has one, with the data
     model ``params.light_data_model`` and extrapolation ``params.light_extrapolate``, started from rho = I, and, when
     ``params.light_edges > 0`` (texture domain), solved again with the albedo
     edges it found freed (:func:`core.solve.edges.reweighted_lighting`).
@@ -406,13 +407,15 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         The problem it was solved on, and its result (``albedo_lam`` unused).
     """
     light_problem = problem
+    if params.domain == "texture" and problem.light_texture is not None:
+        light_problem = problem.on_layout(problem.light_texture)
     if (
         params.domain == "texture"
         and params.light_size
-        and problem.texture is not None
-        and problem.texture.size > params.light_size
+        and light_problem.texture is not None
+        and light_problem.texture.size > params.light_size
     ):
-        light_problem = with_texture_size(problem, params.light_size)
+        light_problem = with_texture_size(light_problem, params.light_size)
     if params.domain == "texture" and params.light_pixels > 0:
         light_problem = thinned_for_lighting(light_problem, params.light_pixels)
     if params.domain == "texture" and params.light_balance > 0:
