@@ -77,18 +77,18 @@ def _layout(mesh, n):
     return texture_layout(mesh.tri_uv, mesh.tri_pos, mesh.tri_vert, n)
 
 
-#: The lighting stage's layout is rasterised at this many times its size (SolverParams.light_size), not
-#: coarsened from the texture's: a texture's islands are a texel wider than their triangles, so coarsened from
-#: a larger texture they lose texels at their borders, and the lighting, the colour texture and the albedo's
-#: weight moved with the texture size (photo_sun's weight halved from a 256² texture to a 1024²). Twice: the
-#: fixtures' 256², where the lighting stage was tuned.
-LIGHT_LAYOUT_FACTOR = 2
+#: The lighting stage's layout is the mesh's UV map rasterised at this size (the default texture's), then
+#: coarsened to the stage's own (SolverParams.light_size), whatever the texture's size. A UV island is about a
+#: texel wider than its triangles at every size, so coarsened from the texture's own layout, the stage's texels
+#: at the islands' borders came and went with the texture size, and the lighting, the colour texture and the
+#: albedo's weight with them (photo_sun's weight 32 at a 256² texture, 16.5 at 1024²; docs/measurements.md).
+LIGHT_LAYOUT_SIZE = 1024
 
 
 def _layouts(mesh, n, light_size):
-    """The texture's layout, and the lighting stage's where the texture is larger than it (else None)."""
-    light = LIGHT_LAYOUT_FACTOR * light_size
-    return _layout(mesh, n), _layout(mesh, light) if 0 < light < n else None
+    """The texture's layout, and the lighting stage's where it coarsens the texture and that is not the same."""
+    light = _layout(mesh, LIGHT_LAYOUT_SIZE) if 0 < light_size < n and n != LIGHT_LAYOUT_SIZE else None
+    return _layout(mesh, n), light
 
 
 def _unclipped(mask, clipped):
