@@ -60,7 +60,7 @@ def build_parser(with_blend: bool) -> argparse.ArgumentParser:
     if with_blend:
         p.add_argument("blend", metavar="SCENE.blend", help="the scene to read")
     add_arguments(p, CLI_FIELDS)
-    # The flag --detail off replaced (stop 58): old scripts keep working.
+    # The flag that --detail off replaced: old scripts keep working.
     p.add_argument("--no-detail", dest="detail", action="store_const", const="off", help=argparse.SUPPRESS)
     p.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     return p
