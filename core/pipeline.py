@@ -86,9 +86,16 @@ LIGHT_LAYOUT_SIZE = 1024
 
 
 def _layouts(mesh, n, light_size):
-    """The texture's layout, and the lighting stage's where it coarsens the texture and that is not the same."""
-    light = _layout(mesh, LIGHT_LAYOUT_SIZE) if 0 < light_size < n and n != LIGHT_LAYOUT_SIZE else None
+    """The texture's layout, and the lighting stage's where it coarsens the texture and that is not the same
+    (not for a lighting stage of LIGHT_LAYOUT_SIZE or more, which keeps the texture's)."""
+    coarsens = 0 < light_size < min(n, LIGHT_LAYOUT_SIZE)
+    light = _layout(mesh, LIGHT_LAYOUT_SIZE) if coarsens and n != LIGHT_LAYOUT_SIZE else None
     return _layout(mesh, n), light
+
+
+def _light_size(options: Options) -> int:
+    """The lighting stage's texture size (SolverParams.light_size, as the run's solver settings give it)."""
+    return int((options.solver or {}).get("light_size", DEFAULTS.light_size))
 
 
 def _unclipped(mask, clipped):
@@ -152,8 +159,7 @@ def _solved_texels(options: Options, inputs, flat: bool = False) -> float:
     lighting stage's texture alone; ``flat``: a flat albedo's, on at most :data:`FLAT_ALBEDO_PIXELS`."""
     working, _, _, texels = _sizes(options, inputs)
     if runs_detail(options, inputs):
-        light_size = int((options.solver or {}).get("light_size", DEFAULTS.light_size))
-        return min(texels, 1e-6 * light_size**2)
+        return min(texels, 1e-6 * _light_size(options) ** 2)
     return min(texels, 1.3 * working, 2e-6 * FLAT_ALBEDO_PIXELS if flat else np.inf)
 
 
@@ -516,7 +522,7 @@ def compute(
     solve_progress(0.0, "building the problem")
     # The layout (one core) is made while the occlusion, the lighting's choice and the sun search use the others.
     # A run that fails or is cancelled before that waits for it: no thread outlives the run.
-    light_size = int((opt.solver or {}).get("light_size", DEFAULTS.light_size)) if opt.method == "texture" else 0
+    light_size = _light_size(opt) if opt.method == "texture" else 0
     with joined(start(_layouts, inputs.mesh, n, light_size, threads=opt.threads)) as layout_job:
         correspondences = None
         if opt.method == "image":

@@ -618,3 +618,10 @@ def test_the_lighting_is_the_same_whatever_the_texture_size(scene):
     assert small["lighting_stage"]["energy"] == pytest.approx(large["lighting_stage"]["energy"], rel=1e-9)
     assert small["colour_texture"] == pytest.approx(large["colour_texture"], rel=1e-9)
     assert small["albedo_lam"] == pytest.approx(large["albedo_lam"], rel=1e-9)
+    # A lighting stage of the layout's size or more, or a texture of that size, keeps the texture's own.
+    from core.pipeline import LIGHT_LAYOUT_SIZE, _layouts
+
+    assert _layouts(island, 512, 32)[1].size == LIGHT_LAYOUT_SIZE
+    assert _layouts(island, LIGHT_LAYOUT_SIZE, 32)[1] is None
+    assert _layouts(island, 2 * LIGHT_LAYOUT_SIZE, LIGHT_LAYOUT_SIZE)[1] is None
+    assert _layouts(island, 512, 0)[1] is None

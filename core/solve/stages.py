@@ -466,7 +466,9 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
         lighting_progress = sub_progress(progress, 0.0, LIGHTING_SHARE, "lighting")
         light_problem, first = lighting_stage(problem, params, lighting_progress, cancel)
         builds = builds.result()
-    texture = colour_texture(light_problem, first.sigma) if params.domain == "texture" else float("nan")
+    # Measured once, where the hook or the albedo stage's weight uses it.
+    wanted = params.domain == "texture" and (albedo_problem is not None or params.albedo_adapt)
+    texture = colour_texture(light_problem, first.sigma) if wanted else float("nan")
     other = albedo_problem(texture) if albedo_problem is not None else None
     if other is not None and other is not problem:
         problem, builds = other, None  # the starts were built for the other problem
