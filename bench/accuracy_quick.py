@@ -169,7 +169,7 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     row["project"] = _scored(proj, gt, inside)
     if sets.get("align_photos", Options.align_photos):
         # Our run and its ceiling on the cameras as the add-on moves them.
-        inputs, bakes, alignment = align_views(inputs, bakes, size)
+        inputs, bakes, alignment = align_views(inputs, bakes)
         row["cameras_moved"] = int(alignment.applied.sum())
     ours, secs = run_ours(inputs, bakes, size, sets)
     row["ours"] = _scored(ours, gt, inside)

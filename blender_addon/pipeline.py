@@ -222,7 +222,8 @@ def _prepare(scene, options, progress, cancel, out_dir, photos, t):
 
         t = time.perf_counter()
         bake_progress(1.0, "aligning the photos")
-        inputs, bakes, alignment = align_views(inputs, bakes, options.texture_size, options.threads, cancel)
+        # On a texture of the photos' own density, not the one asked for: the cameras move the same at any size.
+        inputs, bakes, alignment = align_views(inputs, bakes, threads=options.threads, cancel=cancel)
         times["align"], peaks["align"] = time.perf_counter() - t, peak_mb()
         moved = int(alignment.applied.sum())
         bake_progress(

@@ -58,6 +58,19 @@ def test_shifts_of_photos_whose_cameras_are_off_are_found():
     assert np.array_equal(found.shift[~moved], np.zeros((int((~moved).sum()), 2)))
 
 
+def test_the_shifts_do_not_depend_on_the_texture_size_asked_for():
+    # The others' texture is made at the photos' own density: on a texture finer than the photos (pixels 10
+    # texels apart at 2048^2) a texel would hold one pixel of one photo, and nothing would line up.
+    true = np.array([[0.0, 0.0], [0.8, -0.5], [0.0, 0.0], [-0.6, 0.9], [0.0, 0.0], [1.1, 0.3], [0.0, 0.0]])
+    views = _views(true)
+    found = photo_shifts(*views)
+    assert np.array_equal(photo_shifts(*views, texture_size=1024).measured, found.measured)
+    moved = np.hypot(*true.T) > 0
+    err = (found.measured - found.measured[~moved].mean(axis=0)) - true
+    assert np.abs(err).max() < 0.15, err
+    assert np.array_equal(found.applied, moved)
+
+
 def test_photos_that_line_up_stay():
     found = photo_shifts(*_views(np.zeros((6, 2)), seed=3), texture_size=N)
     assert np.hypot(*found.measured.T).max() < MIN_SHIFT_PX

@@ -41,6 +41,8 @@ __all__ = [
     "MAX_SPREAD_PX",
     "MIN_SHIFT_PX",
     "MAX_SHIFT_PX",
+    "MAX_TEXTURE_SIZE",
+    "PIXELS_PER_TEXEL",
 ]
 
 #: The Gaussian (in pixels) whose blur is taken off the photos: what is finer is the detail that is lined up.
@@ -62,6 +64,13 @@ MIN_SHIFT_PX = 0.25
 #: reach much further, and a larger shift found is a wrong match (measured: 2.05 px on a photo whose camera was
 #: right, where the cameras a pixel off measured 0.3-1.5 px).
 MAX_SHIFT_PX = 1.5
+#: The others' texture is made at the largest size (at most :data:`MAX_TEXTURE_SIZE`) at which the median photo
+#: has this many pixels per texel it reaches, whatever the texture asked for: finer, a texel holds one pixel of one
+#: photo and the others' texture is their noise. Measured on 6 captures with cameras 0.9 px off (320 x 240 and
+#: 640 x 480), left off after the shifts: 0.27 px with 1.5, 0.28 px with 2, 0.48 px on the 1024^2 texture of the
+#: default size (docs/measurements.md).
+PIXELS_PER_TEXEL = 1.5
+MAX_TEXTURE_SIZE = 2048
 #: Most pixels of a photo its shift is measured on (every k-th pixel of the mesh beyond).
 MAX_PIXELS = 30_000
 # Pixels kept around the mesh's box when a photo is cropped: more than the blur and the largest shift reach.
@@ -263,7 +272,7 @@ def _round(views, shift, size, threads, halves):
 
 
 def photo_shifts(
-    photos, masks, uvs, weights=None, texture_size: int = 1024, rounds: int = 3, threads=None, cancel=None
+    photos, masks, uvs, weights=None, texture_size: int = MAX_TEXTURE_SIZE, rounds: int = 3, threads=None, cancel=None
 ):
     """Each photo's image shift against the others' texture (see the module docstring).
 
@@ -276,8 +285,8 @@ def photo_shifts(
     weights : list of (H, W) arrays, optional
         The bake's view weights, for the others' texture.
     texture_size : int
-        The largest texture the others' texture is made at; it is halved until a texel gets about a pixel of the
-        median photo.
+        The largest texture the others' texture is made at; it is halved until the median photo has
+        :data:`PIXELS_PER_TEXEL` pixels per texel it reaches.
     rounds : int
         Rounds of measuring every photo against the others as they were shifted in the round before.
     threads : int or None
@@ -290,7 +299,7 @@ def photo_shifts(
     Alignment
     """
     m = len(photos)
-    size = pixel_matched_size(masks, uvs, texture_size, 1.0)
+    size = pixel_matched_size(masks, uvs, texture_size, PIXELS_PER_TEXEL)
     views = thread_map(
         lambda i: _View(photos[i], masks[i], uvs[i], None if weights is None else weights[i], size), range(m), threads
     )
@@ -319,7 +328,7 @@ def photo_shifts(
     )
 
 
-def align_views(inputs, bakes, texture_size: int = 1024, threads=None, cancel=None):
+def align_views(inputs, bakes, texture_size: int = MAX_TEXTURE_SIZE, threads=None, cancel=None):
     """The views with each camera moved by its photo's shift (:func:`photo_shifts`), and those views baked again.
 
     Parameters

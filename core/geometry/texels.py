@@ -610,6 +610,7 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
 def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
     """A texture size halved from ``n`` (at most 2048) until the median view has about ``pixels_per_texel``
     pixels per texel it reaches, so that a texture made from the photos' pixels has no holes between them.
+    A view has at least one pixel per texel it reaches at any size, so ``pixels_per_texel`` must be above 1.
 
     Parameters
     ----------
