@@ -66,9 +66,9 @@ MIN_SHIFT_PX = 0.25
 MAX_SHIFT_PX = 1.5
 #: The others' texture is made at the largest size (at most :data:`MAX_TEXTURE_SIZE`) at which the median photo
 #: has this many pixels per texel it reaches, whatever the texture asked for: finer, a texel holds one pixel of one
-#: photo and the others' texture is their noise. Measured on 6 captures with cameras 0.9 px off (320 x 240 and
-#: 640 x 480), left off after the shifts: 0.27 px with 1.5, 0.28 px with 2, 0.48 px on the 1024^2 texture of the
-#: default size (docs/measurements.md).
+#: photo and the others' texture is their noise. On 8 captures with cameras 0.9 px off (photos of 256 x 192 to
+#: 1024 x 768), the cameras were left 0.30 px off with 1.5 and 0.29 px with 2, and 0.47 px on the 1024^2 texture
+#: of the default size (docs/measurements.md).
 PIXELS_PER_TEXEL = 1.5
 MAX_TEXTURE_SIZE = 2048
 #: Most pixels of a photo its shift is measured on (every k-th pixel of the mesh beyond).
