@@ -308,7 +308,11 @@ def _report_json(prepared, computed, files, times):
             "sun": computed.info.get("sun", {"used": False}) if opt.sun else None,
             "align_photos": None
             if prepared.alignment is None
-            else {"cameras_moved": int(prepared.alignment.applied.sum()), "mesh_fits": prepared.alignment.mesh_fits},
+            else {
+                "cameras_moved": int(prepared.alignment.applied.sum()),
+                "mesh_fits": prepared.alignment.mesh_fits,
+                "texture_size": prepared.alignment.texture_size,
+            },
             "mask_clipped": opt.mask_clipped,
             "fill_outlines": {"texels": computed.info.get("outline_texels", 0)} if opt.fill_outlines else None,
             "mu": opt.mu,

@@ -96,6 +96,8 @@ class Alignment:
     mesh_fits : bool
         False when the halves of too many photos disagree (:data:`MIN_AGREEING`): the mesh is not the surface
         they show, and no camera is moved.
+    texture_size : int
+        The size of the others' texture the shifts were measured on (:data:`PIXELS_PER_TEXEL`).
     """
 
     measured: np.ndarray
@@ -103,6 +105,7 @@ class Alignment:
     spread: np.ndarray
     applied: np.ndarray
     mesh_fits: bool = True
+    texture_size: int = 0
 
     @property
     def shift(self) -> np.ndarray:
@@ -325,6 +328,7 @@ def photo_shifts(
         spread=spread,
         applied=applied,
         mesh_fits=bool(mesh_fits),
+        texture_size=int(size),
     )
 
 

@@ -619,6 +619,8 @@ def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
     n : int
     pixels_per_texel : float
     """
+    if pixels_per_texel <= 1:
+        raise ValueError(f"pixel_matched_size: pixels_per_texel must be above 1 (every size has 1): {pixels_per_texel}")
     size = min(int(n), 2048)
     while size > 16:
         ratios = []
