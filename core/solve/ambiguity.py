@@ -97,7 +97,8 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> R
     Returns
     -------
     core.solve.solver.Result
-        With ``info["tilt"]``: per channel the tilt kept and the energies before and after, and the seconds.
+        With ``info["tilt"]``: per channel the tilt kept and the energies before and after, the other end of the
+        last round (``next_tilt``, ``next_energy``; None without rounds), and the seconds.
     """
     t0 = time.perf_counter()
     d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
@@ -156,7 +157,15 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> R
             steps.add((keep - len(ends)) * iterations)
             ends.sort(key=lambda end: end[0].e)
         best, a = ends[0]
-        return best, {"tilt": a.tolist(), "energy_before": before, "energy_after": best.e}
+        # The last round's other end: where its energy is within a few per cent, the choice is a near tie.
+        runner_up = ends[1] if len(ends) > 1 else None
+        return best, {
+            "tilt": a.tolist(),
+            "energy_before": before,
+            "energy_after": best.e,
+            "next_tilt": None if runner_up is None else runner_up[1].tolist(),
+            "next_energy": None if runner_up is None else runner_up[0].e,
+        }
 
     with ThreadPoolExecutor(max_workers=channel_threads(params, C, d.obs_pixel.size)) as pool:
         found = list(pool.map(channel, range(C)))
