@@ -28,7 +28,7 @@ from ..masks import masked
 from ..parallel import thread_map
 from ..progress import check_cancel
 from .bilinear import clamped_corners, interpolate
-from .texels import pixel_matched_size, texel_index, texels_reached
+from .texels import MATCHED_SIZE_MAX, pixel_matched_size, texel_index, texels_reached
 
 __all__ = [
     "Alignment",
@@ -41,7 +41,6 @@ __all__ = [
     "MAX_SPREAD_PX",
     "MIN_SHIFT_PX",
     "MAX_SHIFT_PX",
-    "MAX_TEXTURE_SIZE",
     "PIXELS_PER_TEXEL",
 ]
 
@@ -64,13 +63,12 @@ MIN_SHIFT_PX = 0.25
 #: reach much further, and a larger shift found is a wrong match (measured: 2.05 px on a photo whose camera was
 #: right, where the cameras a pixel off measured 0.3-1.5 px).
 MAX_SHIFT_PX = 1.5
-#: The others' texture is made at the largest size (at most :data:`MAX_TEXTURE_SIZE`) at which the median photo
-#: has this many pixels per texel it reaches, whatever the texture asked for: finer, a texel holds one pixel of one
-#: photo and the others' texture is their noise. On 8 captures with cameras 0.9 px off (photos of 256 x 192 to
-#: 1024 x 768), the cameras were left 0.30 px off with 1.5 and 0.29 px with 2, and 0.47 px on the 1024^2 texture
-#: of the default size (docs/measurements.md).
+#: The others' texture is made at the largest size (at most :data:`core.geometry.texels.MATCHED_SIZE_MAX`) at which
+#: the median photo has this many pixels per texel it reaches, whatever the texture asked for: finer, a texel holds
+#: one pixel of one photo and the others' texture is their noise. On 8 captures with cameras 0.9 px off (photos of
+#: 256 x 192 to 1024 x 768), the cameras were left 0.30 px off with 1.5 and 0.29 px with 2, and 0.47 px on the
+#: 1024^2 texture of the default size (docs/measurements.md).
 PIXELS_PER_TEXEL = 1.5
-MAX_TEXTURE_SIZE = 2048
 #: Most pixels of a photo its shift is measured on (every k-th pixel of the mesh beyond).
 MAX_PIXELS = 30_000
 # Pixels kept around the mesh's box when a photo is cropped: more than the blur and the largest shift reach.
@@ -275,7 +273,7 @@ def _round(views, shift, size, threads, halves):
 
 
 def photo_shifts(
-    photos, masks, uvs, weights=None, texture_size: int = MAX_TEXTURE_SIZE, rounds: int = 3, threads=None, cancel=None
+    photos, masks, uvs, weights=None, texture_size: int = MATCHED_SIZE_MAX, rounds: int = 3, threads=None, cancel=None
 ):
     """Each photo's image shift against the others' texture (see the module docstring).
 
@@ -332,7 +330,7 @@ def photo_shifts(
     )
 
 
-def align_views(inputs, bakes, texture_size: int = MAX_TEXTURE_SIZE, threads=None, cancel=None):
+def align_views(inputs, bakes, texture_size: int = MATCHED_SIZE_MAX, threads=None, cancel=None):
     """The views with each camera moved by its photo's shift (:func:`photo_shifts`), and those views baked again.
 
     Parameters

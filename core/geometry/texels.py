@@ -35,6 +35,7 @@ __all__ = [
     "nearest_texel",
     "texel_totals",
     "texture_layout",
+    "MATCHED_SIZE_MAX",
     "pixel_matched_size",
     "uv_stretched",
     "triangle_areas",
@@ -607,9 +608,14 @@ def texture_layout(tri_uv, tri_pos, tri_vert, size, margin=0) -> TextureLayout:
     return TextureLayout(texel_pos=pos, seam_pairs=pairs)
 
 
+#: The largest size :func:`pixel_matched_size` gives.
+MATCHED_SIZE_MAX = 2048
+
+
 def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
-    """A texture size halved from ``n`` (at most 2048) until the median view has about ``pixels_per_texel``
-    pixels per texel it reaches, so that a texture made from the photos' pixels has no holes between them.
+    """A texture size halved from ``n`` (at most :data:`MATCHED_SIZE_MAX`) until the median view has about
+    ``pixels_per_texel`` pixels per texel it reaches, so that a texture made from the photos' pixels has no holes
+    between them.
     A view has at least one pixel per texel it reaches at any size, so ``pixels_per_texel`` must be above 1.
 
     Parameters
@@ -621,7 +627,7 @@ def pixel_matched_size(masks, uvs, n, pixels_per_texel: float = 2.0) -> int:
     """
     if pixels_per_texel <= 1:
         raise ValueError(f"pixel_matched_size: pixels_per_texel must be above 1 (every size has 1): {pixels_per_texel}")
-    size = min(int(n), 2048)
+    size = min(int(n), MATCHED_SIZE_MAX)
     while size > 16:
         ratios = []
         for m, uv in zip(masks, uvs):

@@ -36,7 +36,7 @@ from ..errors import DelightError
 from ..geometry.bake import mesh_normals, row_bands
 from ..geometry.bilinear import interpolate
 from ..geometry.raycast import Triangles
-from ..geometry.texels import bilinear_texels, pixel_matched_size, texel_index, texels_reached
+from ..geometry.texels import MATCHED_SIZE_MAX, bilinear_texels, pixel_matched_size, texel_index, texels_reached
 from ..geometry.transfer import shading_rows
 from ..io.photos import photo_pixels
 from ..masks import masked
@@ -178,7 +178,7 @@ def agreement(photos, masks, uvs, shades, weights, floor, clipped=None, threads=
         return q
 
     own = thread_map(own_albedo, range(len(masks)), threads)
-    size = pixel_matched_size(masks, uvs, 2048)
+    size = pixel_matched_size(masks, uvs, MATCHED_SIZE_MAX)
     ref = fuse_views(own, masks, uvs, size, margin=1)[..., :-1]
     flat = ref.reshape(size * size, -1)
     everywhere = np.ones((size, size), bool)
