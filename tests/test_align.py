@@ -6,6 +6,7 @@ from scipy import ndimage
 
 from core.geometry.align import MIN_SHIFT_PX, photo_shifts, shifted_camera
 from core.geometry.camera import Camera
+from core.geometry.texels import pixel_matched_size
 from core.texture.sample import sample_texture
 
 H, W, N = 120, 160, 256
@@ -71,6 +72,14 @@ def test_the_shifts_do_not_depend_on_the_texture_size_asked_for():
     err = (found.measured - found.measured[~moved].mean(axis=0)) - true
     assert np.abs(err).max() < 0.15, err
     assert np.array_equal(found.applied, moved)
+
+
+def test_a_ratio_that_every_size_has_is_refused():
+    # A photo has at least one pixel per texel it reaches at any size: a ratio of 1 would never halve.
+    photos, masks, uvs = _views(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="above 1"):
+        pixel_matched_size(masks, uvs, 1024, 1.0)
+    assert pixel_matched_size(masks, uvs, 1024, 1.5) < 1024
 
 
 def test_photos_that_line_up_stay():
