@@ -185,6 +185,11 @@ class SolverParams:
         ``iterations`` more times, so that a tilted start is judged nearer its own minimum; () skips it. An
         end stops early where its energy has stopped falling (``tol``), and no end is iterated more than
         ``max_iter`` times in all.
+    light_tilt_entropy : float
+        Under one light, of the last round's ends (those no higher in energy than the search's start), the one
+        whose albedo has the least entropy (:func:`core.solve.ambiguity.albedo_entropy`, its log smoothed by
+        this width) is kept: their energies are often within a per cent, and the albedo's fewer distinct values
+        pick the better end about twice as often as the energy does. 0 keeps the lowest energy.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
@@ -223,6 +228,7 @@ class SolverParams:
     light_tilts: int = 6
     light_tilt_iter: int = 5
     light_tilt_rounds: tuple = ((4, 15), (2, 30))
+    light_tilt_entropy: float = 0.1
     light_data_model: str = "nearest"
     light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
@@ -259,6 +265,7 @@ class SolverParams:
             "albedo_edges",
             "light_pixels",
             "light_balance",
+            "light_tilt_entropy",
         ):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
