@@ -45,8 +45,8 @@ TILT_LENGTHS = (0.4, 0.8)
 
 
 #: The albedo's entropy picks among the last round's ends within this fraction of the lowest energy
-#: (``light_tilt_entropy``). On the fixtures and 35 other scenes the ends are at most 14 % apart and the gains
-#: come from ends up to 4 % apart; on spheres of six flat cells, ends 6-46 % apart, the energy picks better.
+#: (``light_tilt_entropy``): on rendered scenes it picks better up to a few per cent apart, and on spheres of
+#: flat cells, whose ends are up to 46 % apart, the energy picks better beyond that (docs/measurements.md).
 ENTROPY_WINDOW = 0.05
 
 
@@ -101,7 +101,7 @@ def albedo_entropy(rho: np.ndarray, width: float) -> float:
 
 
 def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> Result:
-    """The lighting stage's result, each channel moved to the tilt of lowest energy (module docstring).
+    """The lighting stage's result, each channel moved along the ambiguity to the tilt kept (module docstring).
 
     Parameters
     ----------

@@ -186,10 +186,11 @@ class SolverParams:
         end stops early where its energy has stopped falling (``tol``), and no end is iterated more than
         ``max_iter`` times in all.
     light_tilt_entropy : float
-        Under one light, of the last round's ends (those no higher in energy than the search's start), the one
-        whose albedo has the least entropy (:func:`core.solve.ambiguity.albedo_entropy`, its log smoothed by
-        this width) is kept: their energies are often within a per cent, and the albedo's fewer distinct values
-        pick the better end about twice as often as the energy does. 0 keeps the lowest energy.
+        Under one light, of the last round's ends within :data:`core.solve.ambiguity.ENTROPY_WINDOW` of the
+        lowest energy (and no higher than the search's start), the one whose albedo has the least entropy
+        (:func:`core.solve.ambiguity.albedo_entropy`, its log smoothed by this width) is kept: their energies are
+        often within a per cent, where the albedo's fewer distinct values pick the better end more often than
+        the energy does (docs/measurements.md). 0 keeps the lowest energy.
     albedo_edges : float
         Texture domain, lighting fixed (:func:`core.solve.stages.solve_albedo`,
         the albedo stage): when > 0, each TV row is weighted by
