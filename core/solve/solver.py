@@ -174,6 +174,9 @@ class SolverParams:
         with its TV rows weighted down across the albedo edges it found
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
+    light_edge_passes : int
+        How many times that run is made, each with the edges of the albedo the one before found (reweighted
+        L1 in passes): a second pass frees the edges the first lighting hid (docs/measurements.md).
     light_tilts, light_tilt_iter : int
         Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its
         shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
@@ -226,6 +229,7 @@ class SolverParams:
     light_pixels: float = 64.0
     light_balance: float = 0.5
     light_edges: float = 0.003
+    light_edge_passes: int = 2
     light_tilts: int = 6
     light_tilt_iter: int = 5
     light_tilt_rounds: tuple = ((4, 15), (2, 30))
@@ -287,6 +291,8 @@ class SolverParams:
             raise ValueError(f"solver: threads must be None or >= 1, got {self.threads}")
         if self.light_size < 0:
             raise ValueError(f"solver: light_size must be >= 0, got {self.light_size}")
+        if self.light_edge_passes < 1:
+            raise ValueError(f"solver: light_edge_passes must be >= 1, got {self.light_edge_passes}")
         if self.light_tilts < 0 or self.light_tilt_iter < 1:
             raise ValueError(
                 f"solver: light_tilts must be >= 0 and light_tilt_iter >= 1, got {self.light_tilts}, "

@@ -399,7 +399,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     where it has one, with the data
     model ``params.light_data_model`` and extrapolation ``params.light_extrapolate``, started from rho = I, and, when
     ``params.light_edges > 0`` (texture domain), solved again with the albedo
-    edges it found freed (:func:`core.solve.edges.reweighted_lighting`).
+    edges it found freed (:func:`core.solve.edges.reweighted_lighting`), ``params.light_edge_passes`` times.
 
     Returns
     -------
@@ -426,15 +426,23 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     edges = params.light_edges > 0 and params.domain == "texture"
     tilts = params.light_tilts > 0 and params.domain == "texture"
     # The bar's shares of the first run, the search and the edges' run, as their times were measured.
-    parts = shares({"first": 0.4, **({"tilts": 0.55} if tilts else {}), **({"edges": 0.05} if edges else {})})
+    edge_share = 0.05 * params.light_edge_passes
+    parts = shares({"first": 0.4, **({"tilts": 0.55} if tilts else {}), **({"edges": edge_share} if edges else {})})
     first = solve_joint(light_problem, light_params, sub_progress(progress, *parts["first"]), cancel)
     if tilts:
         tilts_progress = sub_progress(progress, *parts["tilts"])
         tilts_progress(0.0, "searching along the albedo-lighting ambiguity")
         first = tilt_search(light_problem, first, light_params, cancel, tilts_progress)
     if edges:
-        edges_progress = sub_progress(progress, *parts["edges"], "edges")
-        first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
+        # Reweighted L1 in passes: each frees the changes of colour of the albedo the one before found.
+        lo, hi = parts["edges"]
+        step = (hi - lo) / params.light_edge_passes
+        passes = []
+        for k in range(params.light_edge_passes):
+            edges_progress = sub_progress(progress, lo + k * step, lo + (k + 1) * step, "edges")
+            first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
+            passes.append(first.info["edges"]["iterations"])
+        first.info["edges"]["passes"] = passes  # the iterations of each pass; the dict is the last pass's
     first.info["data_model"] = light_params.data_model
     return light_problem, first
 
