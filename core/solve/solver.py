@@ -176,7 +176,7 @@ class SolverParams:
         relative to the median of the albedo's chromaticity); 0 skips it.
     light_edge_passes : int
         How many times that run is made, each with the edges of the albedo the one before found (reweighted
-        L1 in passes): a second pass frees the edges the first lighting hid (docs/measurements.md).
+        L1 in passes): the albedo of each pass shows the changes of colour more sharply (docs/measurements.md).
     light_tilts, light_tilt_iter : int
         Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its
         shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
