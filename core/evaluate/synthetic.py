@@ -30,6 +30,17 @@ class SyntheticScene:
     sigma: np.ndarray  # (m, C, 9) true lighting
     positions: list  # (H, W, 3) hit points, NaN outside masks
 
+    def errors(self, result) -> tuple[float, float]:
+        """A texture-domain solve of this scene against its truth: the shading error (relative, one scale per
+        channel) and the albedo's RMSE (the paper's protocol), each the mean over the channels."""
+        from ..solve.discretization import texture_domain
+        from ..solve.lighting import shading_error
+        from .metrics import scaled_rmse
+
+        d = texture_domain(self.problem)
+        shading = float(shading_error(d, result.sigma, self.sigma).mean())
+        return shading, float(np.mean(scaled_rmse(result.texture, self.albedo_texture, result.seen)))
+
 
 def _look_at(eye, target=(0, 0, 0), up=(0, 0, 1)):
     f = np.asarray(target, float) - eye
