@@ -171,6 +171,8 @@ def test_the_rounds_stay_within_max_iter_and_stop_where_the_energy_has_stopped_f
         dict(light_tilt_rounds=((4, -1),)),
         dict(light_tilt_rounds=(4, 15)),
         dict(light_tilt_rounds=(("4", 15),)),
+        dict(light_tilts=6.0),
+        dict(light_tilt_iter=2.5),
         dict(light_tilt_entropy=-0.1),
         dict(light_tilt_entropy=float("nan")),
     ],

@@ -101,9 +101,10 @@ def test_a_second_pass_frees_the_edges_the_first_lighting_hid():
     assert albedo_two < 0.7 * albedo_one
 
 
-def test_the_edge_passes_are_checked():
+@pytest.mark.parametrize("bad", [0, 2.5, True])
+def test_the_edge_passes_are_checked(bad):
     with pytest.raises(ValueError, match="light_edge_passes"):
-        SolverParams(light_edge_passes=0).check()
+        SolverParams(light_edge_passes=bad).check()
 
 
 @pytest.mark.parametrize("name", ["light_edges", "albedo_edges"])

@@ -275,6 +275,21 @@ class SolverParams:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"solver: {name} must be finite and >= 0, got {v}")
+        for name in (
+            "max_iter",
+            "min_iter",
+            "levels",
+            "coarse_iter",
+            "light_size",
+            "light_edge_passes",
+            "light_tilts",
+            "light_tilt_iter",
+            "cg_iter",
+            "threads",
+        ):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
+                raise ValueError(f"solver: {name} must be a whole number, got {v!r}")
         if self.delta <= 0:
             raise ValueError("solver: delta must be > 0")
         if self.max_iter < 1 or (self.cg_iter is not None and self.cg_iter < 1):
