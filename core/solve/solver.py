@@ -175,8 +175,9 @@ class SolverParams:
         (:func:`core.solve.edges.reweighted_lighting`; this is the edge scale
         relative to the median of the albedo's chromaticity); 0 skips it.
     light_edge_passes : int
-        How many times that run is made, each with the edges of the albedo the one before found (reweighted
-        L1 in passes): the albedo of each pass shows the changes of colour more sharply (docs/measurements.md).
+        How many times at most that run is made, each with the edges of the albedo the one before found
+        (reweighted L1 in passes): the albedo of each pass shows the changes of colour more sharply. The passes
+        stop at one that settles quickly (:data:`core.solve.stages.EDGE_PASS_SETTLED`; docs/measurements.md).
     light_tilts, light_tilt_iter : int
         Two stages, texture domain: after the lighting stage's first run, each channel is restarted from its
         shading tilted along the albedo-lighting ambiguity in ``1 + 2 * light_tilts`` ways, each iterated
@@ -229,7 +230,7 @@ class SolverParams:
     light_pixels: float = 64.0
     light_balance: float = 0.5
     light_edges: float = 0.003
-    light_edge_passes: int = 2
+    light_edge_passes: int = 8
     light_tilts: int = 6
     light_tilt_iter: int = 5
     light_tilt_rounds: tuple = ((4, 15), (2, 30))

@@ -391,6 +391,11 @@ def lighting_data_model(problem, model: str) -> str:
     return model if pixels_per_texel(problem) >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
 
 
+#: A pass of the lighting stage's edges that stops within this many iterations has found the edges it was
+#: given settled: the passes end there (:func:`lighting_stage`).
+EDGE_PASS_SETTLED = 10
+
+
 def lighting_stage(problem, params, progress=None, cancel=None):
     """Stage 1 of the two-stage solve: the lighting, with the strong TV weight ``params.lam``.
 
@@ -399,7 +404,8 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     where it has one, with the data
     model ``params.light_data_model`` and extrapolation ``params.light_extrapolate``, started from rho = I, and, when
     ``params.light_edges > 0`` (texture domain), solved again with the albedo
-    edges it found freed (:func:`core.solve.edges.reweighted_lighting`), ``params.light_edge_passes`` times.
+    edges it found freed (:func:`core.solve.edges.reweighted_lighting`), in passes: at most
+    ``params.light_edge_passes``, until one stops within :data:`EDGE_PASS_SETTLED` iterations.
 
     Returns
     -------
@@ -428,7 +434,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
     # The bar's shares of the first run, the search (shorter without its rounds, where the light moves) and each
     # pass of the edges, as their times were measured (docs/measurements.md).
     tilt_share = 0.25 if params.lighting == "per_view" else 0.52
-    edge_share = 0.1 * params.light_edge_passes
+    edge_share = 0.1 * min(params.light_edge_passes, 3)
     parts = shares(
         {"first": 0.27, **({"tilts": tilt_share} if tilts else {}), **({"edges": edge_share} if edges else {})}
     )
@@ -438,14 +444,20 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         tilts_progress(0.0, "searching along the albedo-lighting ambiguity")
         first = tilt_search(light_problem, first, light_params, cancel, tilts_progress)
     if edges:
-        # Reweighted L1 in passes: each frees the changes of colour of the albedo the one before found.
+        # Reweighted L1 in passes: each frees the changes of colour of the albedo the one before found, until
+        # one settles within EDGE_PASS_SETTLED iterations. Each pass takes half of what is left of the bar's share.
         lo, hi = parts["edges"]
-        step = (hi - lo) / params.light_edge_passes
         passes = []
         for k in range(params.light_edge_passes):
-            edges_progress = sub_progress(progress, lo + k * step, lo + (k + 1) * step, "edges")
-            first = reweighted_lighting(light_problem, first, light_params, edges_progress, cancel)
+            last = k == params.light_edge_passes - 1
+            mid = hi if last else lo + (hi - lo) / 2
+            first = reweighted_lighting(
+                light_problem, first, light_params, sub_progress(progress, lo, mid, "edges"), cancel
+            )
             passes.append(first.info["edges"]["iterations"])
+            lo = mid
+            if passes[-1] <= EDGE_PASS_SETTLED:
+                break
         first.info["edges"]["passes"] = passes  # the iterations of each pass; the dict is the last pass's
     first.info["data_model"] = light_params.data_model
     return light_problem, first
