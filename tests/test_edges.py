@@ -7,7 +7,7 @@ from core.solve.discretization import texture_domain
 from core.solve.edges import edge_weights, with_edges_freed
 from core.solve.lighting import shading_error
 from core.solve.solver import SolverParams
-from core.solve.stages import solve, solve_albedo
+from core.solve.stages import EDGE_PASS_SETTLED, solve, solve_albedo
 
 
 def test_edge_weights_free_the_changes_of_colour_and_hold_those_of_brightness():
@@ -87,18 +87,33 @@ def test_the_albedo_stage_smooths_a_change_of_brightness_and_keeps_the_changes_o
     np.testing.assert_array_equal(d.base, base)  # the caller's discretization keeps its own weights
 
 
-def test_a_second_pass_frees_the_edges_the_first_lighting_hid():
+def test_more_passes_free_the_edges_the_first_lighting_hid():
     # Each pass frees the changes of colour of the albedo the pass before found: reweighted L1 taken further.
     scene = sphere_scene(n_views=8, height=90, width=120, texture_size=64, n_cells=6, seed=2, noise=0.002)
     base = dict(lam=5.0, albedo_lam=0.3, lighting="coupled", light_size=64)
     one = solve(scene.problem, SolverParams(**base, light_edge_passes=1))
-    two = solve(scene.problem, SolverParams(**base))  # the default, 2 passes
+    two = solve(scene.problem, SolverParams(**base, light_edge_passes=2))
+    most = solve(scene.problem, SolverParams(**base))  # the default: up to 8, none settles here
     assert len(one.info["lighting_stage"]["edges"]["passes"]) == 1
     assert len(two.info["lighting_stage"]["edges"]["passes"]) == 2
-    # Measured: shading error 0.037 -> 0.013, albedo 0.042 -> 0.019 (seeds 1, 3, 4 alike).
+    assert len(most.info["lighting_stage"]["edges"]["passes"]) == SolverParams().light_edge_passes
+    # Measured: shading error 0.037 -> 0.013 -> 0.0025, albedo 0.042 -> 0.019 -> 0.015 (seeds 1, 3, 4 alike).
     (shading_one, albedo_one), (shading_two, albedo_two) = scene.errors(one), scene.errors(two)
+    shading_most, albedo_most = scene.errors(most)
     assert shading_two < 0.6 * shading_one
     assert albedo_two < 0.7 * albedo_one
+    assert shading_most < 0.5 * shading_two
+    assert albedo_most < 0.9 * albedo_two
+
+
+def test_the_passes_stop_at_one_that_settles():
+    # One colour: the edges settle after a few passes, and the last pass stops within EDGE_PASS_SETTLED iterations.
+    scene = sphere_scene(n_views=4, height=60, width=80, texture_size=32, n_cells=1, seed=1)
+    result = solve(scene.problem, SolverParams(lam=5.0, albedo_lam=0.3, lighting="coupled", light_size=32))
+    passes = result.info["lighting_stage"]["edges"]["passes"]  # measured [50, 38, 10]
+    assert 1 < len(passes) < SolverParams().light_edge_passes
+    assert passes[-1] <= EDGE_PASS_SETTLED
+    assert all(p > EDGE_PASS_SETTLED for p in passes[:-1])
 
 
 @pytest.mark.parametrize("bad", [0, 2.5, True])
