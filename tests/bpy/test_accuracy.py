@@ -56,13 +56,15 @@ def small_sky(tmp_path_factory):
 
 
 def run_fixture(fixture_dir, out_dir, **kw):
-    """Run the pipeline in-process on the fixture at TEX; return (run report, report.json, scene.json, truth)."""
+    """Run the pipeline in-process on the fixture at TEX (or ``texture_size``); return (run report, report.json,
+    scene.json, truth)."""
+    kw.setdefault("texture_size", TEX)
     with open(os.path.join(fixture_dir, "scene.json")) as fh:
         record = json.load(fh)
     bpy.ops.wm.open_mainfile(filepath=os.path.join(fixture_dir, "scene.blend"))
     rep = pipeline.run(
         bpy.context.scene,
-        pipeline.Options(object_name=record["mesh"]["object"], texture_size=TEX, out_dir=str(out_dir), **kw),
+        pipeline.Options(object_name=record["mesh"]["object"], out_dir=str(out_dir), **kw),
     )
     with open(os.path.join(out_dir, "report.json")) as fh:
         report = json.load(fh)
