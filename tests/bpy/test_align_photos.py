@@ -12,11 +12,10 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import needs_fixture_maker  # noqa: E402
+from conftest import ROOT, needs_fixture_maker  # noqa: E402
 from test_accuracy import reduced_fixture, run_rmse  # noqa: E402
 
 pytestmark = [pytest.mark.bpy, needs_fixture_maker]
-FIXTURE = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "blend_fixtures")
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +63,7 @@ def test_the_full_resolution_cameras_move_with_the_working_ones(small_jitter, tm
 
 def test_the_albedo_of_the_whole_scene_improves(tmp_path):
     """bowl_jitter as committed (12 photos, 10 cameras about a pixel off): aligned, the albedo is nearer the truth."""
-    fixture = os.path.join(FIXTURE, "bowl_jitter")
+    fixture = os.path.join(ROOT, "blend_fixtures", "bowl_jitter")
     plain, _, _ = run_rmse(fixture, tmp_path / "plain", texture_size=256, align_photos=False)
     ours, report, _ = run_rmse(fixture, tmp_path / "aligned", texture_size=256)
     assert sum(c["alignment"]["applied"] for c in report["cameras"]) >= 5
