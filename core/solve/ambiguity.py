@@ -100,7 +100,7 @@ def albedo_entropy(rho: np.ndarray, width: float) -> float:
     return float(-(p * np.log(p)).sum())
 
 
-def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> Result:
+def tilt_search(problem, first: Result, params, cancel=None, progress=None, domain=None) -> Result:
     """The lighting stage's result, each channel moved along the ambiguity to the tilt kept (module docstring).
 
     Parameters
@@ -119,6 +119,9 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> R
     cancel : callable() -> bool, optional
     progress : callable(fraction, message), optional
         Told the share of the search's iterations done (all channels), at most one at a time.
+    domain : core.solve.discretization.Discretization, optional
+        :func:`core.solve.discretization.texture_domain` of ``problem`` with ``params``' data model, where the
+        caller has made it; made here if None.
 
     Returns
     -------
@@ -128,7 +131,7 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None) -> R
         without rounds; the entropies None when they chose nothing), and the seconds.
     """
     t0 = time.perf_counter()
-    d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
+    d = texture_domain(problem, data_model=params.data_model, threads=params.threads) if domain is None else domain
     C = problem.channels
     rho = first.texture.reshape(-1, C)[d.texel_index]
     rho = np.where(np.isfinite(rho), rho, d.rho0)

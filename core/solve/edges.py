@@ -49,7 +49,7 @@ def with_edges_freed(d, rho: np.ndarray, eps: float):
     return d.with_base((d.base * edge_weights(d, rho, eps)).astype(np.float32))
 
 
-def reweighted_lighting(problem, first, params, progress=None, cancel=None):
+def reweighted_lighting(problem, first, params, progress=None, cancel=None, domain=None):
     """The lighting stage again, with each TV row weighted by :func:`edge_weights` of its first albedo.
 
     TV is an L1 penalty: it charges an albedo edge by its height, so a
@@ -69,6 +69,9 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
     params : core.solve.solver.SolverParams
         ``light_edges`` is ``eps`` of :func:`edge_weights`; ``lam``,
         ``lighting`` and the iteration bounds apply as in the first stage.
+    domain : core.solve.discretization.Discretization, optional
+        :func:`core.solve.discretization.texture_domain` of ``problem`` with ``params``' data model, where the
+        caller has made it (the passes of :func:`core.solve.stages.lighting_stage` share one); made here if None.
 
     Returns
     -------
@@ -76,7 +79,7 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None):
         As :func:`core.solve.solver.solve_joint` gives it, with ``info["edges"]``
         (iterations and last energy of this run).
     """
-    d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
+    d = texture_domain(problem, data_model=params.data_model, threads=params.threads) if domain is None else domain
     C = problem.channels
     rho = first.texture.reshape(-1, C)[d.texel_index]
     rho = np.where(np.isfinite(rho), rho, d.rho0)

@@ -439,10 +439,14 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         {"first": 0.27, **({"tilts": tilt_share} if tilts else {}), **({"edges": edge_share} if edges else {})}
     )
     first = solve_joint(light_problem, light_params, sub_progress(progress, *parts["first"]), cancel)
+    # One texture domain for the search and every pass: each weights its own copy's TV rows.
+    domain = None
+    if tilts or edges:
+        domain = texture_domain(light_problem, data_model=light_params.data_model, threads=light_params.threads)
     if tilts:
         tilts_progress = sub_progress(progress, *parts["tilts"])
         tilts_progress(0.0, "searching along the albedo-lighting ambiguity")
-        first = tilt_search(light_problem, first, light_params, cancel, tilts_progress)
+        first = tilt_search(light_problem, first, light_params, cancel, tilts_progress, domain)
     if edges:
         # Reweighted L1 in passes: each frees the changes of colour of the albedo the one before found, until
         # one settles within EDGE_PASS_SETTLED iterations. Each pass takes half of what is left of the bar's share.
@@ -452,7 +456,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
             last = k == params.light_edge_passes - 1
             mid = hi if last else lo + (hi - lo) / 2
             first = reweighted_lighting(
-                light_problem, first, light_params, sub_progress(progress, lo, mid, "edges"), cancel
+                light_problem, first, light_params, sub_progress(progress, lo, mid, "edges"), cancel, domain
             )
             passes.append(first.info["edges"]["iterations"])
             lo = mid
