@@ -436,6 +436,12 @@ SPEC = (
         "Data model",
         "Texture domain: how a photo pixel sees the texels",
         choices=(
+            (
+                "nearest",
+                "Nearest",
+                "A pixel sees the texel it falls nearest to (where the photos have at least 8 pixels per texel; "
+                "else it splats)",
+            ),
             ("splat", "Splat", "A pixel splats onto its 4 texels"),
             (
                 "interpolate",

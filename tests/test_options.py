@@ -104,7 +104,7 @@ def test_check_refuses_non_numbers_and_fractional_integers():
         check("max_iter", True)
     with pytest.raises(DelightError, match="Huber delta must be a number greater than 0, got 0"):
         check("delta", 0.0)
-    assert requirement(OPTIONS["data_model"]) == "one of splat, interpolate"
+    assert requirement(OPTIONS["data_model"]) == "one of nearest, splat, interpolate"
 
 
 def _parser_actions(parser, names):

@@ -8,6 +8,7 @@ import pytest
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
 from core.solve import stages
+from core.solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL, data_model_for, pixels_per_texel
 from core.solve.lighting import floored, split_gains
 from core.solve.problem import Problem
 from core.solve.sh import sh_basis
@@ -15,12 +16,9 @@ from core.solve.solver import SolverParams
 from core.solve.stages import (
     COLOUR_TEXTURE_RANGE,
     COLOUR_TEXTURE_REFERENCE,
-    NEAREST_MIN_PIXELS_PER_TEXEL,
     adapted_albedo_lam,
     colour_texture,
-    lighting_data_model,
     lighting_stage,
-    pixels_per_texel,
     solve,
     solve_albedo,
 )
@@ -122,19 +120,22 @@ def test_a_solve_without_per_view_maps_gives_the_same_texture(exposed, albedo_la
     np.testing.assert_array_equal(bare.sigma, full.sigma)
 
 
-def test_the_lighting_stage_takes_the_nearest_texel_only_with_enough_pixels_per_texel():
+def test_both_stages_take_the_nearest_texel_only_with_enough_pixels_per_texel():
     for size in (16, 64):
         scene = sphere_scene(n_views=6, height=60, width=80, texture_size=size)
         p = scene.problem
         ratio = sum(int(m.sum()) for m in p.masks) / np.count_nonzero(p.texture.inside)
         want = "nearest" if ratio >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
-        assert lighting_data_model(p, "nearest") == want
-        assert lighting_data_model(p, "splat") == "splat"
+        assert data_model_for(p, "nearest") == want
+        assert data_model_for(p, "splat") == "splat"
         r = solve(p, SolverParams(lam=5.0, albedo_lam=0.3, max_iter=3, light_size=size))
         assert np.isfinite(r.texture[r.seen]).all() and r.info["lighting_stage"]["data_model"] == want
+        assert r.info["data_model"] == want  # the albedo stage's, by default "nearest" too
+        forced = solve(p, SolverParams(lam=5.0, albedo_lam=0.3, max_iter=3, light_size=size, data_model="splat"))
+        assert forced.info["data_model"] == "splat"
     # Both sides of the threshold are exercised.
-    assert lighting_data_model(sphere_scene(texture_size=16).problem, "nearest") == "nearest"
-    assert lighting_data_model(sphere_scene(texture_size=64).problem, "nearest") == "splat"
+    assert data_model_for(sphere_scene(texture_size=16).problem, "nearest") == "nearest"
+    assert data_model_for(sphere_scene(texture_size=64).problem, "nearest") == "splat"
 
 
 def test_the_albedo_stage_starts_from_half_the_size_where_texels_outnumber_pixels(monkeypatch):
@@ -271,7 +272,7 @@ def test_the_albedo_stage_keeps_the_shadows_of_a_sun(monkeypatch):
     gt = np.concatenate([g[m] for g, m in zip(scene.albedo_views, p.masks)])
 
     def errors():
-        r = solve_albedo(problem, sigma, SolverParams(lam=0.05))
+        r = solve_albedo(problem, sigma, SolverParams(lam=0.05, data_model="splat"))  # as measured
         est = np.concatenate([w[m] for w, m in zip(r.views, p.masks)])
         return scaled_rmse(est, gt), scaled_rmse(est[dark], gt[dark])
 

@@ -23,18 +23,20 @@ land on the same texel *are* the correspondences. Four data models:
   is the bilinear interpolation of the 4 texels around its UV, as a renderer
   samples the texture: ``beta_p * phi((A rho)_p * a_p - I_p)`` with a sparse
   ``A``. A texture-mapped albedo is an exact zero of the data term.
-* ``"splat"`` (the solver's default): each pixel splats its observation onto
+* ``"splat"``: each pixel splats its observation onto
   the 4 texels with bilinear weights, one observation per (pixel, texel). The
   data term is diagonal in rho, so an iteration costs about half as much,
   but a texel then averages pixels up to a texel away, which biases albedo
   edges and gradients at the scale of a texel. On the rendered fixtures the
   two give the same RMSE (docs/measurements.md); on a synthetic textured
   sphere only ``"interpolate"`` reaches the truth.
-* ``"nearest"``: one observation per pixel, of the texel of largest bilinear
-  weight, with the pixel's whole weight: a quarter of the splats' work. The
-  two-stage solve's lighting stage uses it (``light_data_model``): at 128^2
-  the lighting does not need the texel-scale detail the albedo stage does
-  (docs/measurements.md).
+* ``"nearest"`` (the solver's default, with :data:`NEAREST_MIN_PIXELS_PER_TEXEL`
+  pixels per texel or more; the splat with fewer, :func:`data_model_for`): one
+  observation per pixel, of the texel of largest bilinear weight, with the
+  pixel's whole weight: a quarter of the splats' work, and a texel then
+  averages pixels up to half a texel away, not a whole one, so the albedo's
+  edges blur less. Both stages of the two-stage solve use it
+  (``light_data_model``, ``data_model``; docs/measurements.md).
 * ``"merged"``: the splats of one view on one texel as one observation, of
   their weighted mean value and transfer (a virtual pixel) and their summed
   weight. Exact where the albedo is constant over them, since the shading is
@@ -65,7 +67,35 @@ from .problem import Problem, stacked_rows
 from .sh import sh_basis
 from .spmv import PairNormal, scatter_add
 
-__all__ = ["Discretization", "image_domain", "texture_domain"]
+__all__ = [
+    "Discretization",
+    "NEAREST_MIN_PIXELS_PER_TEXEL",
+    "data_model_for",
+    "image_domain",
+    "pixels_per_texel",
+    "texture_domain",
+]
+
+#: The least photo pixels per texel (inside the islands) for the "nearest" data model; with fewer, texels are
+#: left without a pixel of their own, and :func:`data_model_for` takes the 4-texel splat. Between 2.8 (a working
+#: resolution of 0.01 MP, where "nearest" failed in the lighting stage) and 13.6 (the fewest of the 13 fixtures,
+#: where it did as well as the splat there); in the albedo stage it was lower on 12 of the 13 scenes with more
+#: (docs/measurements.md).
+NEAREST_MIN_PIXELS_PER_TEXEL = 8
+
+
+def pixels_per_texel(problem: Problem) -> float:
+    """Photo pixels on the mesh per texel inside the UV islands of ``problem.texture``."""
+    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
+    return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
+
+
+def data_model_for(problem: Problem, model: str) -> str:
+    """``model`` for :func:`texture_domain` on ``problem``: itself, except "nearest" on fewer than
+    :data:`NEAREST_MIN_PIXELS_PER_TEXEL` pixels per texel (then "splat")."""
+    if model != "nearest" or problem.texture is None:
+        return model
+    return model if pixels_per_texel(problem) >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
 
 
 @dataclass
@@ -95,6 +125,7 @@ class Discretization:
     # Texture domain: (P,) int32, the pixel's region of clipped pixels, minus that of its rim, or 0
     # (core.solve.highlights.clipped_regions); None if none clipped
     clipped_region: np.ndarray | None = None
+    data_model: str | None = None  # texture domain: the data model it was built with
 
     @property
     def n_views(self) -> int:
@@ -433,6 +464,7 @@ def texture_domain(
         texel_index=texels,
         obs_matrix=obs_matrix,
         clipped_region=region,
+        data_model=data_model,
     )
     return d
 

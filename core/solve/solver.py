@@ -52,7 +52,7 @@ from ..memory import release_free_memory
 from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
-from .discretization import Discretization, image_domain, texture_domain
+from .discretization import Discretization, data_model_for, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
 from .lighting import Coupling, per_view_lighting_step, shading, shared_lighting_step
 from .multigrid import Hierarchy, block_grid
@@ -106,8 +106,10 @@ class SolverParams:
     gauss_newton : bool
         Add a joint Gauss-Newton step on rho and sigma to each iteration
         (see :func:`_gauss_newton_step`); about 3x the cost of an iteration.
-    data_model : {"interpolate", "splat", "nearest"}
-        Texture domain: how a pixel sees the texels (:mod:`core.solve.discretization`).
+    data_model : {"nearest", "splat", "interpolate"}
+        Texture domain: how a pixel sees the texels (:mod:`core.solve.discretization`); "nearest" is
+        the splat where the photos have too few pixels per texel
+        (:func:`core.solve.discretization.data_model_for`).
     precision : {"float32", "float64"}
         Working precision of rho and the CG.
     levels, coarse_iter : int
@@ -215,7 +217,7 @@ class SolverParams:
     normalise_correspondences: bool = True
     threads: int | None = None
     gauss_newton: bool = False
-    data_model: str = "splat"
+    data_model: str = "nearest"
     precision: str = "float32"
     levels: int = 4
     coarse_iter: int = 100
@@ -765,7 +767,7 @@ def _solve_level(
     if params.domain == "image":
         d = image_domain(problem, normalise_correspondences=params.normalise_correspondences)
     else:
-        d = texture_domain(problem, data_model=params.data_model, threads=params.threads)
+        d = texture_domain(problem, data_model=data_model_for(problem, params.data_model), threads=params.threads)
     check_cancel()
     # Timings count from the start of the whole solve, levels below included.
     t_build = time.perf_counter() - t0

@@ -25,7 +25,7 @@ from ..memory import release_free_memory
 from ..parallel import blas_on_one_thread, joined, start
 from ..progress import check_cancel, shares, sub_progress
 from .ambiguity import tilt_search
-from .discretization import image_domain, texture_domain
+from .discretization import data_model_for, image_domain, pixels_per_texel, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
 from .highlights import without_highlights
 from .lighting import division_start, floored_where_dark
@@ -48,9 +48,7 @@ __all__ = [
     "adapted_albedo_lam",
     "albedo_stage",
     "colour_texture",
-    "lighting_data_model",
     "lighting_stage",
-    "pixels_per_texel",
     "solve",
     "solve_albedo",
     "solve_two_stage",
@@ -124,12 +122,6 @@ WARM_MIN_ITER = 3
 #: (fewer than COARSE_START_PIXELS pixels per texel), the half-size solve holds what they tell, and running to
 #: the stopping rule there cost time without making the fixtures more accurate (docs/measurements.md).
 REFINE_ITER = 2
-
-
-def pixels_per_texel(problem) -> float:
-    """Photo pixels on the mesh per texel inside the UV islands of ``problem.texture``."""
-    pixels = sum(int(np.count_nonzero(m)) for m in problem.masks)
-    return pixels / max(int(np.count_nonzero(problem.texture.inside)), 1)
 
 
 def thinned_for_lighting(problem, most: float):
@@ -328,7 +320,11 @@ def solve_albedo(
     t_build0 = time.perf_counter()
     if d is None:
         d = (
-            texture_domain(problem, data_model="merged" if merged else params.data_model, threads=params.threads)
+            texture_domain(
+                problem,
+                data_model="merged" if merged else data_model_for(problem, params.data_model),
+                threads=params.threads,
+            )
             if params.domain == "texture"
             else image_domain(problem, normalise_correspondences=params.normalise_correspondences)
         )
@@ -373,22 +369,9 @@ def solve_albedo(
         "domain": d.domain,
         "solved_size": problem.texture.size if d.domain == "texture" else None,
         "coarse_start": coarse,
+        "data_model": d.data_model,
     }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
-
-
-#: The least photo pixels per texel (inside the islands) of the lighting stage's texture for its "nearest"
-#: data model; with fewer, texels are left without a pixel of their own, and the 4-texel splat is used.
-#: Between 2.8 (a working resolution of 0.01 MP, where "nearest" failed) and 13.6 (the fewest of the 13
-#: fixtures, where it did as well as the splat; docs/measurements.md).
-NEAREST_MIN_PIXELS_PER_TEXEL = 8
-
-
-def lighting_data_model(problem, model: str) -> str:
-    """The lighting stage's data model: ``model``, except "nearest" on too few pixels (then "splat")."""
-    if model != "nearest" or problem.texture is None:
-        return model
-    return model if pixels_per_texel(problem) >= NEAREST_MIN_PIXELS_PER_TEXEL else "splat"
 
 
 #: A pass of the lighting stage's edges that stops within this many iterations has found the edges it was
@@ -428,7 +411,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
         light_problem = balanced_for_lighting(light_problem, params.light_balance)
     light_params = replace(params.resolved(), albedo_lam=None, extrapolate=params.light_extrapolate)
     if params.domain == "texture":
-        light_params = replace(light_params, data_model=lighting_data_model(light_problem, params.light_data_model))
+        light_params = replace(light_params, data_model=data_model_for(light_problem, params.light_data_model))
     edges = params.light_edges > 0 and params.domain == "texture"
     tilts = params.light_tilts > 0 and params.domain == "texture"
     # The bar's shares of the first run, the search (shorter without its rounds, where the light moves) and each
