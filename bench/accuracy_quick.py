@@ -225,7 +225,7 @@ def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
 def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
     """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
-    from core.solve.discretization import texture_domain
+    from core.solve.discretization import data_model_for, texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error
     from core.solve.solver import SolverParams
     from core.solve.stages import ALBEDO_LAMBDA, solve_albedo
@@ -248,7 +248,11 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
             seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
             out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
         edges = sets.get("albedo_edges", SolverParams.albedo_edges)
-        r = solve_albedo(problem, sigma, SolverParams(lam=lam, albedo_edges=edges), d=d)
+        # The albedo stage's data model as our run had it.
+        model = data_model_for(problem, sets.get("data_model", SolverParams.data_model))
+        if model != d.data_model:
+            d = texture_domain(problem, data_model=model)
+        r = solve_albedo(problem, sigma, SolverParams(lam=lam, albedo_edges=edges, data_model=model), d=d)
         out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
     return out
 
