@@ -14,6 +14,7 @@ import numbers
 from dataclasses import dataclass, field, make_dataclass
 
 from .errors import DelightError
+from .solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
 from .solve.solver import SolverParams
 from .solve.stages import ALBEDO_LAMBDA
@@ -439,8 +440,8 @@ SPEC = (
             (
                 "nearest",
                 "Nearest",
-                "A pixel sees the texel it falls nearest to (where the photos have at least 8 pixels per texel; "
-                "else it splats)",
+                "A pixel sees the texel it falls nearest to (where the photos have at least "
+                f"{NEAREST_MIN_PIXELS_PER_TEXEL} pixels per texel; else it splats)",
             ),
             ("splat", "Splat", "A pixel splats onto its 4 texels"),
             (
