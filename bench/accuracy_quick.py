@@ -21,8 +21,9 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
 * ``light err``: how far our estimated shading is from that best-fitting shading, relative RMS over the
   observations after one scale per channel (the albedo's scale is free).
 
-RMSE is ``core.evaluate.metrics.scaled_rmse`` over the seen texels inside the UV islands, truth in [0, 1],
-as in ``bench/accuracy.py``; a truth larger than ``--texture-size`` is box-averaged down.
+RMSE is ``core.evaluate.metrics.scaled_rmse`` over the texels inside the UV islands that both ``project`` and
+``ours`` saw (the ceilings: those of them they saw), truth in [0, 1], as in ``bench/accuracy.py``; a result
+larger than the truth is box-averaged down to it. ``ours_own_texels`` scores ours on all the texels it saw.
 """
 
 from __future__ import annotations
@@ -152,7 +153,13 @@ def box_down(albedo, seen, size):
     return a / np.maximum(count, 1)[..., None], count > 0
 
 
+def _seen(result, size):
+    """The texels ``result`` saw, at the truth's ``size``."""
+    return box_down(result.albedo, result.seen, size)[1]
+
+
 def _scored(result, gt, inside):
+    """RMSE per channel of ``result`` on the texels it saw inside ``inside``."""
     albedo, seen = box_down(result.albedo, result.seen, gt.shape[0])
     return scaled_rmse(albedo, gt, seen & inside).tolist()
 
@@ -166,13 +173,22 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     gt, inside = truth(fixture_dir, record, truth_size)
     row = {"fixture": name, "texture_size": size, "set": {k: repr(v) for k, v in sets.items()}}
     proj = run_project(inputs, bakes, size)
-    row["project"] = _scored(proj, gt, inside)
     if sets.get("align_photos", Options.align_photos):
         # Our run and its ceiling on the cameras as the add-on moves them.
         inputs, bakes, alignment = align_views(inputs, bakes)
         row["cameras_moved"] = int(alignment.applied.sum())
     ours, secs = run_ours(inputs, bakes, size, sets)
-    row["ours"] = _scored(ours, gt, inside)
+    # Both on the texels both saw: projection puts a pixel on one texel and leaves texels between sparse pixels
+    # unseen, which the solve's splat sees; those are the hardest, and each on its own texels would not be fair.
+    scored = _seen(proj, truth_size) & _seen(ours, truth_size) & inside
+    row["project"] = _scored(proj, gt, scored)
+    row["ours"] = _scored(ours, gt, scored)
+    row["ours_own_texels"] = _scored(ours, gt, inside)
+    row["texels"] = {
+        "scored": int(scored.sum()),
+        "project": int((_seen(proj, truth_size) & inside).sum()),
+        "ours": int((_seen(ours, truth_size) & inside).sum()),
+    }
     row["ours_seconds"] = secs
     row["lam"] = ours.info.get("lam")
     row["lighting_variation"] = ours.info.get("lighting_variation")
@@ -182,7 +198,7 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
         if key in ours.info:
             row[key] = ours.info[key]
     if ceiling:
-        row.update(true_lighting(inputs, bakes, gt, inside, size, ours, sets))
+        row.update(true_lighting(inputs, bakes, gt, scored, size, ours, sets))
     return row
 
 
@@ -222,8 +238,8 @@ def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
     )
 
 
-def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
-    """The true-lighting ceilings and the error of our lighting (see the module docstring)."""
+def true_lighting(inputs, bakes, gt, texels, size, ours, sets):
+    """The true-lighting ceilings, scored on ``texels``, and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
     from core.solve.discretization import data_model_for, texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error
@@ -245,7 +261,7 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
             out["lighting_error"] = float(np.mean(shading_error(d, ours.sigma, sigma)))
             div = np.full((size * size, 3), np.nan, np.float32)
             div[d.texel_index] = division_start(d, sigma)
-            seen = np.isfinite(div[:, 0]).reshape(size, size) & inside
+            seen = np.isfinite(div[:, 0]).reshape(size, size) & texels
             out["ceiling_divide"] = scaled_rmse(div.reshape(size, size, 3), gt, seen).tolist()
         edges = sets.get("albedo_edges", SolverParams.albedo_edges)
         # The albedo stage's data model as our run had it.
@@ -253,7 +269,7 @@ def true_lighting(inputs, bakes, gt, inside, size, ours, sets):
         if model != d.data_model:
             d = texture_domain(problem, data_model=model)
         r = solve_albedo(problem, sigma, SolverParams(lam=lam, albedo_edges=edges, data_model=model), d=d)
-        out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & inside).tolist()
+        out["ceiling" + label] = scaled_rmse(r.texture, gt, r.seen & texels).tolist()
     return out
 
 
