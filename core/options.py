@@ -17,7 +17,7 @@ from .errors import DelightError
 from .solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
 from .solve.solver import SolverParams
-from .solve.stages import ALBEDO_LAMBDA
+from .solve.stages import ALBEDO_LAMBDA, LIGHT_LAMBDA
 
 __all__ = [
     "Option",
@@ -35,8 +35,9 @@ __all__ = [
 
 _SOLVER = SolverParams()
 _AUTO_LAMBDA = (
-    f"picked from how much the lighting changes between the photos: {LAMBDA_FIXED:g} under one "
-    f"lighting, {LAMBDA_VARYING:g} when it changes"
+    f"{LIGHT_LAMBDA:g} for the lighting stage; with the albedo stage off (the paper's one stage), picked from how "
+    f"much the lighting changes between the photos: {LAMBDA_FIXED:g} under one lighting, {LAMBDA_VARYING:g} when "
+    "it changes"
 )
 
 
@@ -194,7 +195,7 @@ SPEC = (
         flag="--lambda",
         metavar="L|auto",
         auto=_AUTO_LAMBDA,
-        shown=_SOLVER.lam,
+        shown=LIGHT_LAMBDA,
         noun="lambda",
     ),
     Option(

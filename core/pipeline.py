@@ -370,15 +370,16 @@ def _lighting_choice(problem, opt, progress):
 
     ``variation`` is :func:`core.solve.lambda_choice.lighting_variation` where measured, else None.
     """
-    from .solve.lambda_choice import LAMBDA_FIXED, auto_lambda, describe_lambda
+    from .solve.lambda_choice import auto_lambda, describe_lambda
     from .solve.lighting import choose_lighting
+    from .solve.stages import LIGHT_LAMBDA
 
     lam, variation, lighting = opt.lam, None, opt.lighting
     if lam is None or lighting == "auto":
         auto, variation = auto_lambda(problem)
         if lam is None:
             # With two stages the lighting stage wants a strong TV whatever the light does.
-            lam = LAMBDA_FIXED if opt.albedo_lam is not None else auto
+            lam = LIGHT_LAMBDA if opt.albedo_lam is not None else auto
             progress(0.0, describe_lambda(lam, variation, auto=True))
         if lighting == "auto":
             lighting = choose_lighting(variation)

@@ -19,6 +19,7 @@ from core.failures import report_failure
 from core.options import OPTIONS, RUN_FIELDS, SOLVER_FIELDS, SPEC, Options, check, requirement
 from core.progress import STAGES, ProgressPrinter, check_cancel, stage_progress
 from core.solve.solver import SolverParams
+from core.solve.stages import LIGHT_LAMBDA
 
 #: Bad values and the one message every front end gives for them.
 BAD = [
@@ -39,7 +40,8 @@ def test_solver_defaults_come_from_solver_params():
     p = SolverParams()
     for name in ("mu", "max_iter", "delta", "data_model", "gauss_newton"):
         assert OPTIONS[name].default == getattr(p, name), name
-    assert OPTIONS["lam"].default is None and OPTIONS["lam"].ui_default == p.lam  # auto; the UI shows 5
+    # Auto; the UI starts at the lighting stage's weight, which the default two stages take.
+    assert OPTIONS["lam"].default is None and OPTIONS["lam"].ui_default == LIGHT_LAMBDA
     assert pipeline.DEFAULTS == p
 
 

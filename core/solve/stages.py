@@ -44,6 +44,7 @@ from .solver import (
 
 __all__ = [
     "ALBEDO_LAMBDA",
+    "LIGHT_LAMBDA",
     "LIGHTING_SHARE",
     "adapted_albedo_lam",
     "albedo_stage",
@@ -79,6 +80,9 @@ def solve(
     return solve_two_stage(problem, params, progress, cancel, views, scale_up, albedo_problem)
 
 
+#: TV weight of the lighting stage where the pipeline picks it (two stages): strong, so that the lighting keeps
+#: the shading and not the albedo; chosen by leave-one-scene-out over 48 scenes (docs/measurements.md).
+LIGHT_LAMBDA = 8.0
 #: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
 #: fixtures (docs/measurements.md); with ``SolverParams.albedo_adapt``, the weight at COLOUR_TEXTURE_REFERENCE.
 ALBEDO_LAMBDA = 20.0

@@ -13,6 +13,7 @@ from conftest import ROOT, needs_fixture_blend  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD  # noqa: E402
+from blender_addon.core.solve.stages import LIGHT_LAMBDA  # noqa: E402
 
 pytestmark = [pytest.mark.bpy, needs_fixture_blend]
 
@@ -40,7 +41,7 @@ def test_auto_lambda_follows_the_lighting(name, lam, lighting, stages, tmp_path)
         params = json.load(fh)["parameters"]
     # With two stages the lighting stage always takes the strong TV weight; the photos choose the lighting
     # model instead: one light held in common when it is fixed, free per photo when it moves.
-    lam = lam if stages == 1 else LAMBDA_FIXED
+    lam = lam if stages == 1 else LIGHT_LAMBDA
     assert params["lambda_auto"] is True and params["lambda"] == lam, params
     assert params["lighting"] == lighting, params
     assert rep.lam == lam and rep.lighting_variation == params["lighting_variation"]
