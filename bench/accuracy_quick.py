@@ -180,15 +180,12 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     ours, secs = run_ours(inputs, bakes, size, sets)
     # Both on the texels both saw: projection puts a pixel on one texel and leaves texels between sparse pixels
     # unseen, which the solve's splat sees; those are the hardest, and each on its own texels would not be fair.
-    scored = _seen(proj, truth_size) & _seen(ours, truth_size) & inside
+    proj_seen, ours_seen = _seen(proj, truth_size) & inside, _seen(ours, truth_size) & inside
+    scored = proj_seen & ours_seen
     row["project"] = _scored(proj, gt, scored)
     row["ours"] = _scored(ours, gt, scored)
     row["ours_own_texels"] = _scored(ours, gt, inside)
-    row["texels"] = {
-        "scored": int(scored.sum()),
-        "project": int((_seen(proj, truth_size) & inside).sum()),
-        "ours": int((_seen(ours, truth_size) & inside).sum()),
-    }
+    row["texels"] = {"scored": int(scored.sum()), "project": int(proj_seen.sum()), "ours": int(ours_seen.sum())}
     row["ours_seconds"] = secs
     row["lam"] = ours.info.get("lam")
     row["lighting_variation"] = ours.info.get("lighting_variation")
