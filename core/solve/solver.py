@@ -146,7 +146,9 @@ class SolverParams:
         None: one stage, as the paper. A number: two stages
         (:func:`core.solve.stages.solve_two_stage`): the lighting is
         estimated with ``lam``, then the albedo solved again with that
-        lighting fixed and this TV weight.
+        lighting fixed and this TV weight. ``lam``'s default is the one-stage
+        solve's; where :mod:`core.pipeline` picks it for two stages it is
+        :data:`core.solve.stages.LIGHT_LAMBDA`.
     albedo_adapt : bool
         Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show
         (:func:`core.solve.stages.adapted_albedo_lam`); False: as given.
