@@ -191,6 +191,7 @@ def evaluate(name, fixture_dir, size, sets, ceiling=True):
     row["lighting_variation"] = ours.info.get("lighting_variation")
     row["albedo_lam"] = ours.info.get("albedo_lam")
     row["colour_texture"] = ours.info.get("colour_texture")
+    row["colour_sparsity"] = ours.info.get("colour_sparsity")
     for key in ("lighting_mode", "stages"):
         if key in ours.info:
             row[key] = ours.info[key]
@@ -279,7 +280,10 @@ def line(row):
     if row.get("albedo_lam") is not None:
         s += f"  albedo lam {row['albedo_lam']:.3g}"
         if row.get("colour_texture") is not None:
-            s += f" (colour texture {row['colour_texture']:.4f})"
+            s += f" (colour texture {row['colour_texture']:.4f}"
+            if row.get("colour_sparsity") is not None:
+                s += f", sparsity {row['colour_sparsity']:.3f}"
+            s += ")"
     if "ceiling" in row:
         s += (
             f"  ceiling {_fmt(row['ceiling'])} ({np.mean(row['ceiling']):.3f})"

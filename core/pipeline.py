@@ -23,7 +23,7 @@ from .scene import FullPhoto, SceneInputs
 from .solve.problem import Problem, row_blocks
 from .solve.pyramid import seen_onto
 from .solve.solver import SolverParams
-from .solve.stages import LIGHTING_SHARE, albedo_stage, colour_texture, lighting_stage, solve
+from .solve.stages import LIGHTING_SHARE, albedo_stage, colour_measures, lighting_stage, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
@@ -599,7 +599,8 @@ def compute(
             light_problem, lit_result = lighting_stage(
                 problem, params, sub_progress(solve_progress, first, last), cancel
             )
-            texture = colour_texture(light_problem, lit_result.sigma)
+            measures = colour_measures(light_problem, lit_result.sigma)
+            texture = measures[0]
             if wants_detail(opt, texture):
                 result = _lighting_only(lit_result, texture)
             else:
@@ -622,7 +623,7 @@ def compute(
                     views=False,
                     scale_up=False,
                     started=t_light,
-                    texture=texture,
+                    measures=measures,
                 )
             light_problem = lit_result = None
         else:

@@ -48,6 +48,7 @@ __all__ = [
     "LIGHTING_SHARE",
     "adapted_albedo_lam",
     "albedo_stage",
+    "colour_measures",
     "colour_texture",
     "lighting_stage",
     "solve",
@@ -94,6 +95,12 @@ ALBEDO_LAMBDA = 20.0
 COLOUR_TEXTURE_REFERENCE = 0.044
 COLOUR_TEXTURE_POWER = 6.0
 COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
+#: ... times ``(h / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER``, h how sparse those changes of colour are
+#: (:func:`colour_measures`): fine texture that changes everywhere (noise, fabric) wants a weaker TV than its
+#: colour texture alone gives, a few sharp edges between flat patches a stronger one. Fitted with the reference
+#: weight by leave-one-scene-out over 40 scenes, and checked on 6 more (docs/measurements.md).
+COLOUR_SPARSITY_REFERENCE = 0.385
+COLOUR_SPARSITY_POWER = 6.0
 
 
 def _start(d, sigma, half=None) -> np.ndarray:
@@ -483,13 +490,13 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
         builds = builds.result()
     # Measured once, where the hook or the albedo stage's weight uses it.
     wanted = params.domain == "texture" and (albedo_problem is not None or params.albedo_adapt)
-    texture = colour_texture(light_problem, first.sigma) if wanted else float("nan")
-    other = albedo_problem(texture) if albedo_problem is not None else None
+    measures = colour_measures(light_problem, first.sigma) if wanted else (float("nan"), float("nan"))
+    other = albedo_problem(measures[0]) if albedo_problem is not None else None
     if other is not None and other is not problem:
         problem, builds = other, None  # the starts were built for the other problem
     albedo_progress = sub_progress(progress, LIGHTING_SHARE, 1.0, "albedo")
     return albedo_stage(
-        problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, t0, texture
+        problem, light_problem, first, params, albedo_progress, cancel, views, builds, scale_up, t0, measures
     )
 
 
@@ -504,14 +511,14 @@ def albedo_stage(
     builds=None,
     scale_up=True,
     started=None,
-    texture=None,
+    measures=None,
 ):
     """Stage 2 of the two-stage solve: :func:`solve_albedo` on ``problem`` with ``params.albedo_lam`` (adapted
-    to the photos' :func:`colour_texture` with ``params.albedo_adapt``), under :func:`lighting_stage`'s
+    to the photos' :func:`colour_measures` with ``params.albedo_adapt``), under :func:`lighting_stage`'s
     lighting ``first.sigma``; ``light_problem`` is the problem that stage was solved on.
 
     ``started``: when the lighting stage began (:func:`time.perf_counter`), for its seconds in the summary;
-    ``texture``: the colour texture, if the caller measured it already.
+    ``measures``: :func:`colour_measures` of ``light_problem``, if the caller measured them already.
 
     Returns
     -------
@@ -522,16 +529,18 @@ def albedo_stage(
     t0 = t1 if started is None else started
     first.views = None  # not needed: free them before the larger stage
     albedo_params = replace(params, lam=params.albedo_lam)
+    texture = sparsity = None
     if params.albedo_adapt and params.domain == "texture":
-        if texture is None:
-            texture = colour_texture(light_problem, first.sigma)
-        albedo_params = replace(albedo_params, lam=adapted_albedo_lam(params.albedo_lam, texture))
-    else:
-        texture = None
+        texture, sparsity = colour_measures(light_problem, first.sigma) if measures is None else measures
+        albedo_params = replace(albedo_params, lam=adapted_albedo_lam(params.albedo_lam, texture, sparsity))
     light_pixels = sum(int(m.sum()) for m in light_problem.masks)
     light_problem = None  # its thinned photos too
     if texture is not None and progress is not None:
-        progress(0.0, f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f})")
+        progress(
+            0.0,
+            f"lambda {albedo_params.lam:.3g} (from the photos' colour texture {texture:.3f}, its sparsity "
+            f"{sparsity:.2f})",
+        )
     second = solve_albedo(
         problem,
         first.sigma,
@@ -556,20 +565,24 @@ def albedo_stage(
     }
     second.info["albedo_lam"] = albedo_params.lam
     second.info["colour_texture"] = texture
+    second.info["colour_sparsity"] = sparsity
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second
 
 
-def colour_texture(problem, sigma: np.ndarray) -> float:
-    """How much fine colour texture the photos show: the median change of chromaticity between neighbouring
-    texels of the photos divided by their shading (:func:`division_start`, nearest texel), on the problem's
-    texture (:func:`solve_two_stage` gives it the lighting stage's, at most 128², where the rule was fitted).
+def colour_measures(problem, sigma: np.ndarray) -> tuple[float, float]:
+    """``(texture, sparsity)``: how much fine colour texture the photos show, and how sparse its changes are.
 
-    Chromaticity (``3 rho / sum(rho)``) hardly changes with the shading, so where the lighting left shading in
-    the division this measures the albedo's own changes of colour. NaN when no two neighbouring texels are seen.
+    Both from the changes of chromaticity between neighbouring texels of the photos divided by their shading
+    (:func:`division_start`, nearest texel), on the problem's texture (:func:`solve_two_stage` gives it the lighting
+    stage's, at most 128², where the rule was fitted). Chromaticity (``3 rho / sum(rho)``) hardly changes with the
+    shading, so where the lighting left shading in the division these measure the albedo's own changes of colour.
+    ``texture`` is their median; ``sparsity`` their Hoyer sparsity, ``(sqrt(n) - |s|_1 / |s|_2) / (sqrt(n) - 1)``:
+    0 where every pair changes alike, 1 where one pair holds all the change. NaN, NaN for grey photos or when no
+    two neighbouring texels are seen.
     """
     if problem.channels != 3:  # grey photos: no colour to change
-        return float("nan")
+        return float("nan"), float("nan")
     size = problem.texture.size
     d = texture_domain(problem, data_model="nearest")
     img = np.full((size * size, 3), np.nan)
@@ -584,13 +597,27 @@ def colour_texture(problem, sigma: np.ndarray) -> float:
         both = np.delete(seen, -1, axis) & np.delete(seen, 0, axis)
         steps.append(np.sqrt((step[both] ** 2).sum(axis=-1)))
     steps = np.concatenate(steps)
-    return float(np.median(steps)) if steps.size else float("nan")
+    if not steps.size:
+        return float("nan"), float("nan")
+    texture = float(np.median(steps))
+    norm = float(np.sqrt(np.sum(steps**2)))
+    root = np.sqrt(steps.size)
+    sparsity = float((root - steps.sum() / norm) / (root - 1)) if norm > 0 and steps.size > 1 else float("nan")
+    return texture, sparsity
 
 
-def adapted_albedo_lam(albedo_lam: float, texture: float) -> float:
-    """The albedo stage's TV weight for the photos' :func:`colour_texture` (``albedo_lam`` where it is NaN)."""
+def colour_texture(problem, sigma: np.ndarray) -> float:
+    """How much fine colour texture the photos show: :func:`colour_measures`' first."""
+    return colour_measures(problem, sigma)[0]
+
+
+def adapted_albedo_lam(albedo_lam: float, texture: float, sparsity: float = float("nan")) -> float:
+    """The albedo stage's TV weight for the photos' colour texture and its sparsity (:func:`colour_measures`):
+    ``albedo_lam`` where the texture is NaN; the texture's factor alone where the sparsity is."""
     if not np.isfinite(texture):
         return albedo_lam
     lo, hi = COLOUR_TEXTURE_RANGE
     factor = (max(texture, 1e-12) / COLOUR_TEXTURE_REFERENCE) ** -COLOUR_TEXTURE_POWER
+    if np.isfinite(sparsity):
+        factor *= (max(sparsity, 1e-12) / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER
     return float(albedo_lam * np.clip(factor, lo, hi))
