@@ -14,9 +14,11 @@ from core.solve.problem import Problem
 from core.solve.sh import sh_basis
 from core.solve.solver import SolverParams
 from core.solve.stages import (
+    COLOUR_SPARSITY_REFERENCE,
     COLOUR_TEXTURE_RANGE,
     COLOUR_TEXTURE_REFERENCE,
     adapted_albedo_lam,
+    colour_measures,
     colour_texture,
     lighting_stage,
     solve,
@@ -57,12 +59,18 @@ def test_two_stages_report_both(exposed):
     params = SolverParams(lam=5.0, albedo_lam=0.3, lighting="shared", max_iter=5, coarse_iter=5, light_size=16)
     said = []
     r = solve(problem, params, progress=lambda f, m: said.append(m))
-    # The albedo stage's weight follows the colour texture the lighting stage's division shows, and says so.
-    assert np.isfinite(r.info["colour_texture"])
-    assert r.info["albedo_lam"] == adapted_albedo_lam(0.3, r.info["colour_texture"]) != 0.3
-    assert f"albedo: lambda {r.info['albedo_lam']:.3g} (from the photos' colour texture" in " | ".join(said)
+    # The albedo stage's weight follows the colour texture the lighting stage's division shows and its sparsity,
+    # and says so.
+    texture, sparsity = r.info["colour_texture"], r.info["colour_sparsity"]
+    assert np.isfinite(texture) and 0 < sparsity < 1
+    assert r.info["albedo_lam"] == adapted_albedo_lam(0.3, texture, sparsity) != 0.3
+    assert (
+        f"albedo: lambda {r.info['albedo_lam']:.3g} (from the photos' colour texture {texture:.3f}, its sparsity "
+        in (" | ".join(said))
+    )
     fixed = solve(problem, replace(params, albedo_adapt=False))
     assert fixed.info["albedo_lam"] == 0.3 and fixed.info["colour_texture"] is None
+    assert fixed.info["colour_sparsity"] is None
     assert r.info["lighting_stage"]["lighting"] == "shared"
     assert r.info["lighting_stage"]["solved_size"] == 16
     assert r.texture.shape == (32, 32, 3) and np.isfinite(r.texture[r.seen]).all()
@@ -97,6 +105,16 @@ def test_colour_texture_sees_changes_of_colour_and_not_of_brightness():
     assert grey < 0.01 * COLOUR_TEXTURE_REFERENCE
     grey_photos = sphere_scene(n_views=2, channels=1, texture_size=16, seed=2)
     assert np.isnan(colour_texture(grey_photos.problem, grey_photos.sigma))
+    assert np.isnan(colour_measures(grey_photos.problem, grey_photos.sigma)).all()
+
+
+def test_colour_sparsity_tells_a_few_edges_from_changes_everywhere():
+    # Patches of colour change at a few edges between flat cells: sparse. A checker of colour changes at every
+    # pair of neighbours alike: as dense as changes can be.
+    scene = sphere_scene(n_views=6, height=60, width=80, texture_size=32, seed=2)
+    _, patches = colour_measures(scene.problem, scene.sigma)
+    _, everywhere = colour_measures(_patterned(scene, [1.0, -1.0, 0.0]), scene.sigma)
+    assert 0 <= everywhere < 0.2 < 0.5 < patches <= 1, (everywhere, patches)
 
 
 def test_the_albedo_weight_falls_as_the_colour_texture_rises_within_its_range():
@@ -107,6 +125,18 @@ def test_the_albedo_weight_falls_as_the_colour_texture_rises_within_its_range():
     assert np.all(np.diff(lams) <= 0) and lams[1] > lams[2] > lams[3] > lams[4] > lams[5]
     assert lams[0] == pytest.approx(20.0 * hi) and lams[-1] == pytest.approx(20.0 * lo)
     assert adapted_albedo_lam(20.0, float("nan")) == 20.0
+
+
+def test_the_albedo_weight_rises_with_the_sparsity_of_the_changes_of_colour():
+    lo, hi = COLOUR_TEXTURE_RANGE
+    h = COLOUR_SPARSITY_REFERENCE * np.array([0.01, 0.5, 0.9, 1.0, 1.1, 2.0])
+    lams = [adapted_albedo_lam(20.0, COLOUR_TEXTURE_REFERENCE, x) for x in h]
+    assert lams[3] == pytest.approx(20.0)
+    assert lams[0] == pytest.approx(20.0 * lo) and lams[-1] == pytest.approx(20.0 * hi)
+    assert lams[1] < lams[2] < lams[3] < lams[4] < lams[5]
+    # Without a sparsity (no two neighbouring texels), the colour texture alone.
+    f = 1.3 * COLOUR_TEXTURE_REFERENCE
+    assert adapted_albedo_lam(20.0, f, float("nan")) == adapted_albedo_lam(20.0, f)
 
 
 @pytest.mark.parametrize("albedo_lam", [0.3, None])
