@@ -218,9 +218,9 @@ SPEC = (
         "bool",
         _SOLVER.albedo_adapt,
         "Albedo lambda from texture",
-        "Scale the albedo lambda by how much fine colour texture the photos show: less smoothing where the "
-        "albedo changes colour everywhere, more on flat patches (the albedo lambda is then the weight for an "
-        "average texture; Texture method)",
+        "Scale the albedo lambda by how much fine colour texture the photos show and how sparse its changes "
+        "are: less smoothing where the albedo changes colour everywhere, more on flat patches with a few edges "
+        "(the albedo lambda is then the weight for an average texture; Texture method)",
         flag="--albedo-adapt",
     ),
     Option(
