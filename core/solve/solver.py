@@ -150,8 +150,8 @@ class SolverParams:
         solve's; where :mod:`core.pipeline` picks it for two stages it is
         :data:`core.solve.stages.LIGHT_LAMBDA`.
     albedo_adapt : bool
-        Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show
-        (:func:`core.solve.stages.adapted_albedo_lam`); False: as given.
+        Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show and
+        how sparse its changes are (:func:`core.solve.stages.adapted_albedo_lam`); False: as given.
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).

@@ -95,10 +95,10 @@ ALBEDO_LAMBDA = 20.0
 COLOUR_TEXTURE_REFERENCE = 0.044
 COLOUR_TEXTURE_POWER = 6.0
 COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
-#: ... times ``(h / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER``, h how sparse those changes of colour are
-#: (:func:`colour_measures`): fine texture that changes everywhere (noise, fabric) wants a weaker TV than its
-#: colour texture alone gives, a few sharp edges between flat patches a stronger one. Fitted with the reference
-#: weight by leave-one-scene-out over 40 scenes, and checked on 6 more (docs/measurements.md).
+#: That factor is multiplied by ``(h / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER``, h how sparse those
+#: changes of colour are (:func:`colour_measures`): fine texture that changes everywhere (noise, fabric) wants a
+#: weaker TV than its colour texture alone gives, a few sharp edges between flat patches a stronger one. Fitted
+#: with the reference weight by leave-one-scene-out over 40 scenes, and checked on 6 more (docs/measurements.md).
 COLOUR_SPARSITY_REFERENCE = 0.385
 COLOUR_SPARSITY_POWER = 6.0
 
