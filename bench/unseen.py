@@ -3,7 +3,7 @@
 Run by hand (not a test); it renders with Cycles as ``blend_fixtures/make_fixtures.py`` does (about a minute on 2
 cores), into ``build/bench/unseen/`` (not kept in the repository)::
 
-    .venv/bin/python bench/unseen.py [--out DIR] [--only NAME ...] [--resolution W H]
+    .venv/bin/python bench/unseen.py [--out DIR] [--moving] [--only NAME ...] [--resolution W H]
     .venv/bin/python bench/accuracy_quick.py --fixtures build/bench/unseen --texture-size 0 [--no-ceiling]
 
 The 13 fixtures chose the defaults; these check them on scenes they were not chosen on (the albedo stage's floor was
@@ -11,7 +11,8 @@ chosen on the first 17 as well, and checked on the next five; the rule for clipp
 and checked on the last five, all with 8-bit photos and a Principled material; docs/measurements.md).
 ``--resolution`` renders them larger: at 560x420 and 640x480 they have 68-102 photo pixels per texel on the
 lighting stage's 128² texture, more than the fixtures, as large captures have (the lighting stage's ``light_pixels``
-was checked on them).
+was checked on them). ``--moving`` makes six more whose light moves between the photos (:data:`MOVING`, into
+``build/bench/moving/``), made to check the albedo stage's weight where the 27 have one such scene.
 """
 
 from __future__ import annotations
@@ -425,30 +426,118 @@ SCENES = {
 }
 
 
-def register(only=None):
-    """Make the scenes known to ``make_fixtures``; the names of ``only`` (all if None), checked."""
-    for name, spec in SCENES.items():
+def _moving_sun(**kw):
+    """A sun lamp that turns and climbs between the photos over an HDRI that turns too (as torus_varying_sun's)."""
+    return dict(
+        kind="sun_per_view",
+        sun_strength=3.0,
+        sun_angle_deg=5.0,
+        sun_elevation_deg=[30.0, 60.0],
+        sun_azimuth_deg=0.0,
+        sun_azimuth_step_deg=137.50776405,
+        strength=0.5,
+        rotation_step_deg=97.0,
+        **kw,
+    )
+
+
+#: Six scenes whose light moves between the photos (the 27 have one such), made to check the albedo stage's weight
+#: from the sparsity of the changes of colour (2026-11-30, thirty-eighth session; ``--moving``).
+MOVING = {
+    "m_bowl_patches_sun": dict(
+        _COMMON,
+        seed=20100,
+        film_transparent=True,
+        mesh="bowl",
+        albedo="patches",
+        interpolation="Closest",
+        material="diffuse",
+        lighting=_moving_sun(hdri=["forest"]),
+        photo_format="EXR",
+    ),
+    "m_rock_coffee_hdri": dict(
+        _COMMON,
+        seed=20200,
+        mesh="rock",
+        albedo="photo:coffee.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(kind="hdri_per_view", hdri=["courtyard", "sunset"], strength=[0.7, 0.6], rotation_step_deg=137.5),
+        photo_format="PNG",
+    ),
+    "m_stairs_noise_sun": dict(
+        _COMMON,
+        seed=20300,
+        mesh="stairs",
+        albedo="noise",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=_moving_sun(hdri=["city"]),
+        photo_format="PNG",
+    ),
+    "m_suzanne_regions_hdri": dict(
+        _COMMON,
+        seed=20400,
+        albedo="regions",
+        interpolation="Closest",
+        material="principled",
+        lighting=dict(kind="hdri_per_view", hdri=["city", "forest"], strength=[0.8, 0.8], rotation_step_deg=97.0),
+        photo_format="JPEG",
+        jpeg_quality=90,
+    ),
+    "m_torus_checker_sun": dict(
+        _COMMON,
+        seed=20500,
+        film_transparent=True,
+        mesh="torus",
+        albedo="checker",
+        interpolation="Closest",
+        material="diffuse",
+        lighting=_moving_sun(hdri=["courtyard"]),
+        photo_format="EXR",
+    ),
+    "m_bowl_chelsea_hdri": dict(
+        _COMMON,
+        seed=20600,
+        film_transparent=True,
+        mesh="bowl",
+        albedo="photo:chelsea.png",
+        interpolation="Linear",
+        material="diffuse",
+        lighting=dict(kind="hdri_per_view", hdri=["interior", "sunrise"], strength=[0.9, 0.6], rotation_step_deg=137.5),
+        photo_format="EXR",
+    ),
+}
+
+
+def register(only=None, scenes=None):
+    """Make ``scenes`` (default :data:`SCENES`) known to ``make_fixtures``; the names of ``only`` (all if None),
+    checked."""
+    scenes = SCENES if scenes is None else scenes
+    for name, spec in scenes.items():
         fixtures.SCENES[name] = spec
         fixtures._DESCRIPTIONS[name] = f"unseen scene {name} (bench/unseen.py)"
-    unknown = sorted(set(only or ()) - set(SCENES))
+    unknown = sorted(set(only or ()) - set(scenes))
     if unknown:
-        raise SystemExit(f"error: no unseen scene {', '.join(unknown)} (bench/unseen.py has {', '.join(SCENES)})")
-    return list(only or SCENES)
+        raise SystemExit(f"error: no unseen scene {', '.join(unknown)} (bench/unseen.py has {', '.join(scenes)})")
+    return list(only or scenes)
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default=os.path.join(ROOT, "build", "bench", "unseen"))
-    p.add_argument("--only", nargs="*", choices=list(SCENES), help="scenes to make (default: all)")
+    p.add_argument("--out", help="default: build/bench/unseen, or build/bench/moving with --moving")
+    p.add_argument("--moving", action="store_true", help="the six scenes whose light moves (MOVING), not the 27")
+    p.add_argument("--only", nargs="*", choices=list(SCENES) + list(MOVING), help="scenes to make (default: all)")
     p.add_argument(
         "--resolution", nargs=2, type=int, metavar=("W", "H"), help="photo size (default: 256 192, the scenes' own)"
     )
     args = p.parse_args(argv)
     resolution = tuple(args.resolution) if args.resolution else None
-    for name in register(args.only):
+    out = args.out or os.path.join(ROOT, "build", "bench", "moving" if args.moving else "unseen")
+    for name in register(args.only, MOVING if args.moving else SCENES):
         # Absolute: the scene's photo paths are made relative to the .blend, and a relative --out broke them.
-        fixtures.generate(name, os.path.abspath(args.out), resolution=resolution)
-        print("made", os.path.join(os.path.abspath(args.out), name), flush=True)
+        fixtures.generate(name, os.path.abspath(out), resolution=resolution)
+        print("made", os.path.join(os.path.abspath(out), name), flush=True)
 
 
 if __name__ == "__main__":
