@@ -427,18 +427,8 @@ SCENES = {
 
 
 def _moving_sun(**kw):
-    """A sun lamp that turns and climbs between the photos over an HDRI that turns too (as torus_varying_sun's)."""
-    return dict(
-        kind="sun_per_view",
-        sun_strength=3.0,
-        sun_angle_deg=5.0,
-        sun_elevation_deg=[30.0, 60.0],
-        sun_azimuth_deg=0.0,
-        sun_azimuth_step_deg=137.50776405,
-        strength=0.5,
-        rotation_step_deg=97.0,
-        **kw,
-    )
+    """torus_varying_sun's light (a sun lamp that turns and climbs between the photos, an HDRI that turns too)."""
+    return dict(fixtures.SCENES["torus_varying_sun"]["lighting"], **kw)
 
 
 #: Six scenes whose light moves between the photos (the 27 have one such), made to check the albedo stage's weight
