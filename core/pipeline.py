@@ -120,8 +120,9 @@ def runs_detail(options: Options, inputs) -> bool:
 
 #: With ``detail`` "auto", the least colour texture of the photos (:func:`core.solve.stages.colour_texture`)
 #: that gets the detail stage. On a flatter albedo the albedo stage at the working resolution, whose TV weight
-#: is then strong (26 or more), takes out shading that the stage's per-pixel division keeps. Chosen by
-#: leave-one-scene-out over 21 scenes with photos larger than the working resolution (docs/measurements.md).
+#: is then strong (26 or more at the reference sparsity of its changes of colour), takes out shading that the
+#: stage's per-pixel division keeps. Chosen by leave-one-scene-out over 21 scenes with photos larger than the
+#: working resolution (docs/measurements.md).
 DETAIL_MIN_COLOUR_TEXTURE = 0.042
 
 
