@@ -9,7 +9,10 @@ the lighting is left to explain the variation inside the regions.
 The albedo stage (:func:`core.solve.stages.solve_albedo`) weights its rows
 the same way, from its start: a strong TV weight then smooths the shading left
 inside regions of one colour (a shadow changes brightness, not colour) while
-the changes of colour keep their height.
+the changes of colour keep their height. At a strong weight it is then solved
+once more with every change its result kept freed, of colour or of brightness
+(``chromaticity=False``): TV lowers the height of each change it keeps, and a
+region so freed takes its level from the photos.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from .solver import Channel, continued_result, iterate, iteration_report
 __all__ = ["edge_weights", "with_edges_freed", "reweighted_lighting"]
 
 
-def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
+def edge_weights(d, rho: np.ndarray, eps: float, chromaticity: bool = True) -> np.ndarray:
     """Per row of ``d.B``, ``e / (|B c| + e)``: near 1 inside flat regions, small across albedo edges.
 
     ``c`` is the albedo's chromaticity (``C * rho / sum(rho)`` over the C
@@ -33,10 +36,11 @@ def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
     colour changes: a cast shadow or shading left in the lighting stage's
     albedo changes its brightness much more than its colour, and stays held
     by TV. ``|B c|`` is the norm over the channels of the difference across
-    the row, and ``e = eps`` times the median norm of ``c``.
+    the row, and ``e = eps`` times the median norm of ``c``. ``chromaticity=False``: ``c`` is rho itself, so
+    that changes of brightness count too.
     """
     x = np.asarray(rho, np.float64)
-    if x.shape[1] > 1:
+    if chromaticity and x.shape[1] > 1:
         x = x.shape[1] * x / np.maximum(x.sum(axis=1, keepdims=True), 1e-12)
     diff = d.B @ x.astype(np.float32)
     g = np.sqrt(np.sum(np.asarray(diff, np.float64) ** 2, axis=1))
@@ -44,9 +48,9 @@ def edge_weights(d, rho: np.ndarray, eps: float) -> np.ndarray:
     return e / (g + max(e, 1e-30))
 
 
-def with_edges_freed(d, rho: np.ndarray, eps: float):
+def with_edges_freed(d, rho: np.ndarray, eps: float, chromaticity: bool = True):
     """A shallow copy of ``d`` whose TV rows are weighted by :func:`edge_weights` of ``rho``; ``d`` keeps its own."""
-    return d.with_base((d.base * edge_weights(d, rho, eps)).astype(np.float32))
+    return d.with_base((d.base * edge_weights(d, rho, eps, chromaticity)).astype(np.float32))
 
 
 def reweighted_lighting(problem, first, params, progress=None, cancel=None, domain=None):

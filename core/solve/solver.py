@@ -206,6 +206,11 @@ class SolverParams:
         divided by the shading) with this edge scale, so TV smooths what is left
         of the shading inside regions of one colour and spares the changes of
         colour; 0: plain TV.
+    albedo_debias : float
+        Texture domain, the albedo stage: at a TV weight of at least this, the albedo is solved once more from
+        its result, each TV row weighted by :func:`core.solve.edges.edge_weights` of that result's colour and
+        brightness (the edge scale ``albedo_edges``): a strong TV lowers the height of every change it keeps,
+        and the regions so freed take their level from the photos (docs/measurements.md). 0: never.
     """
 
     domain: str = "texture"
@@ -242,6 +247,7 @@ class SolverParams:
     light_data_model: str = "nearest"
     light_extrapolate: float = 2.0
     albedo_edges: float = 0.002
+    albedo_debias: float = 40.0
 
     def resolved(self) -> SolverParams:
         """These parameters with "auto" and None replaced by what they stand for."""
@@ -273,6 +279,7 @@ class SolverParams:
             "max_texels_per_pixel",
             "light_edges",
             "albedo_edges",
+            "albedo_debias",
             "light_pixels",
             "light_balance",
             "light_tilt_entropy",

@@ -235,6 +235,18 @@ def _start_builds(problem, params) -> dict:
     return out
 
 
+#: The most iterations of :func:`solve_albedo`'s pass with the changes of its result freed, and its share of
+#: the stage's bar.
+DEBIAS_MAX_ITER = 50
+DEBIAS_SHARE = 0.3
+
+
+def debiases(params) -> bool:
+    """Whether :func:`solve_albedo` with ``params`` solves again with the changes of its result freed: at a TV
+    weight of at least ``params.albedo_debias`` (0: never)."""
+    return params.albedo_debias > 0 and params.lam >= params.albedo_debias
+
+
 def solve_albedo(
     problem,
     sigma: np.ndarray,
@@ -344,11 +356,13 @@ def solve_albedo(
     if rho0 is None:
         rho0 = _start(d, sigma, half)
         half = None
+    plain = d
     if params.albedo_edges > 0 and d.domain == "texture":
         d = with_edges_freed(d, rho0, params.albedo_edges)
+    debias = debiases(params) and d.domain == "texture" and not merged
 
-    def channel(c):
-        ch = Channel(d, c, params, rho0[:, c], sigma[:, c])
+    def channel(d, c, rho):
+        ch = Channel(d, c, params, rho, sigma[:, c])
         shade = floored_where_dark(ch.shade.astype(np.float64), ch.values).astype(ch.ft)
         ch._set_sigma(ch.sigma, shade)
         ch.e = ch.energy()
@@ -358,8 +372,10 @@ def solve_albedo(
     deltas = ([] if warm_delta is None else [warm_delta]) + [params.delta]
     # The bar's share of the run with the smoother Huber, as measured: about 2/3 of the iterations.
     spans = [(0.0, 0.65), (0.65, 1.0)] if len(deltas) == 2 else [(0.0, 1.0)]
+    if debias:
+        spans = [(a * (1 - DEBIAS_SHARE), b * (1 - DEBIAS_SHARE)) for a, b in spans]
     with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
-        channels = list(pool.map(channel, range(problem.channels)))
+        channels = list(pool.map(lambda c: channel(d, c, rho0[:, c]), range(problem.channels)))
         rho0 = None  # each channel has its own copy
         release_free_memory()  # the build's temporaries
         for delta, span in zip(deltas, spans):
@@ -371,6 +387,18 @@ def solve_albedo(
             least = params.min_iter if delta == params.delta else min(params.min_iter, WARM_MIN_ITER)
             history, _ = iterate(channels, params, report, lambda: check_cancel(cancel), t0, it, least, pool)
             it += len(history) - 1
+        if debias:
+            # Once more from the result, every change it kept freed (of colour or of brightness): TV lowers the
+            # height of each change it keeps, and a region so freed takes its level from the photos.
+            rho = np.stack([ch.rho for ch in channels], axis=1)
+            d = with_edges_freed(plain, rho, params.albedo_edges, chromaticity=False)
+            channels = list(pool.map(lambda c: channel(d, c, rho[:, c]), range(problem.channels)))
+            rho = None
+            report = iteration_report(sub_progress(progress, 1 - DEBIAS_SHARE, 1.0))
+            pass_params = replace(params, max_iter=it + DEBIAS_MAX_ITER)
+            history, _ = iterate(channels, pass_params, report, lambda: check_cancel(cancel), t0, it, None, pool)
+            debiased = len(history) - 1
+            it += debiased
     rho, sigma = rescaled(d, channels)
     views, texture, seen = result_maps(problem, d, rho, views=views and not merged)
     info = {
@@ -381,6 +409,7 @@ def solve_albedo(
         "solved_size": problem.texture.size if d.domain == "texture" else None,
         "coarse_start": coarse,
         "data_model": d.data_model,
+        "debias_iterations": debiased if debias else None,
     }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
