@@ -9,7 +9,8 @@ stages (:func:`solve_two_stage`):
    and flattens its detail.
 2. :func:`solve_albedo`: the albedo again, under that lighting held fixed, with a weak TV weight chosen from
    the photos' colour texture (:func:`colour_texture`): a convex problem in rho alone, started from the photos
-   divided by the shading (:func:`core.solve.lighting.division_start`), or from its own solve at half the size.
+   divided by the shading (:func:`core.solve.lighting.division_start`), or from its own solve at half the size;
+   at a strong weight, solved once more with the changes of its result freed (:func:`debiases`).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ __all__ = [
     "albedo_stage",
     "colour_measures",
     "colour_texture",
+    "debiases",
     "lighting_stage",
     "solve",
     "solve_albedo",
@@ -271,9 +273,10 @@ def solve_albedo(
         The lighting of each view (as :class:`core.solve.solver.Result` gives it).
     params : core.solve.solver.SolverParams
         ``lam`` is the TV weight, lowered across the changes of colour of the
-        start by ``albedo_edges`` (texture domain); ``max_iter``, ``min_iter``, ``tol``, ``delta``,
-        ``cg_iter``, ``threads``, ``extrapolate`` and ``max_texels_per_pixel``
-        apply as in :func:`core.solve.solver.solve`.
+        start by ``albedo_edges`` (texture domain), and at ``albedo_debias`` or more solved once more with
+        the changes of its result freed (at most :data:`DEBIAS_MAX_ITER` iterations); ``max_iter``,
+        ``min_iter``, ``tol``, ``delta``, ``cg_iter``, ``threads``, ``extrapolate`` and
+        ``max_texels_per_pixel`` apply as in :func:`core.solve.solver.solve`.
     rho0 : (n, C) array, optional
         Start; default :func:`division_start`, or with fewer than
         :data:`COARSE_START_PIXELS` pixels per texel (texture domain) this
@@ -301,7 +304,8 @@ def solve_albedo(
     Returns
     -------
     core.solve.solver.Result
-        With ``sigma`` as given, rescaled with rho so that the mean shading is 1.
+        With ``sigma`` as given, rescaled with rho so that the mean shading is 1; the energies of its last
+        run (the pass's, under its own weights, where it made one: ``info["debias_iterations"]``).
     """
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
