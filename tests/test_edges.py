@@ -106,9 +106,11 @@ def test_a_strong_albedo_weight_frees_the_changes_it_kept_and_their_height_comes
     below, _ = run(10.5)
     # Measured 0.0287 / 0.0262 / 0.0276 against 0.0259 / 0.0224 / 0.0246, in 15 more iterations.
     assert np.all(freed_error < 0.93 * plain_error), (freed_error, plain_error)
-    assert plain.info["debias_iterations"] is None and below.info["debias_iterations"] is None
-    assert freed.iterations == plain.iterations + freed.info["debias_iterations"] > plain.iterations
-    assert np.all(np.diff(freed.energy) <= 0)  # the energies of the pass, under its own weights
+    assert plain.info["debias"] is None and below.info["debias"] is None
+    # The solve's iterations and energies are the plain run's; the pass reports its own, within the same bound.
+    assert freed.iterations == plain.iterations and freed.energy == plain.energy
+    assert 0 < freed.info["debias"]["iterations"] <= SolverParams().max_iter
+    assert freed.info["debias"]["energy"][-1] < plain.energy[-1]  # the freed rows weigh less
     np.testing.assert_array_equal(below.texture, plain.texture)
 
 

@@ -237,10 +237,9 @@ def _start_builds(problem, params) -> dict:
     return out
 
 
-#: The most iterations of :func:`solve_albedo`'s pass with the changes of its result freed, and its share of
-#: the bar after a solve to convergence or after a few iterations refined from the half-size start (measured:
-#: 35 iterations after 32, 13 after 19; 16 after 2).
-DEBIAS_MAX_ITER = 50
+#: The share of :func:`solve_albedo`'s bar that its pass with the changes of its result freed takes, after a
+#: solve to convergence or after a few iterations refined from the half-size start (measured: 35 iterations
+#: after 32, 13 after 19; 16 after 2).
 DEBIAS_SHARE = 0.45
 DEBIAS_SHARE_REFINED = 0.85
 
@@ -276,7 +275,7 @@ def solve_albedo(
     params : core.solve.solver.SolverParams
         ``lam`` is the TV weight, lowered across the changes of colour of the
         start by ``albedo_edges`` (texture domain), and at ``albedo_debias`` or more solved once more with
-        the changes of its result freed (at most :data:`DEBIAS_MAX_ITER` iterations); ``max_iter``,
+        the changes of its result freed (in at most ``max_iter`` iterations of its own); ``max_iter``,
         ``min_iter``, ``tol``, ``delta``, ``cg_iter``, ``threads``, ``extrapolate`` and
         ``max_texels_per_pixel`` apply as in :func:`core.solve.solver.solve`.
     rho0 : (n, C) array, optional
@@ -306,8 +305,9 @@ def solve_albedo(
     Returns
     -------
     core.solve.solver.Result
-        With ``sigma`` as given, rescaled with rho so that the mean shading is 1; the energies of its last
-        run (the pass's, under its own weights, where it made one: ``info["debias_iterations"]``).
+        With ``sigma`` as given, rescaled with rho so that the mean shading is 1. The iterations and energies
+        are those of the solve; the pass's, under its own weights, are in ``info["debias"]`` where it made one
+        (``iterations``, and the last ``energy``), as the lighting stage reports its passes.
     """
     params = replace(params, lighting="fixed", albedo_lam=None).resolved()
     t0 = time.perf_counter()
@@ -332,6 +332,7 @@ def solve_albedo(
         r.info["solved_size"] = size
         return r
     half = coarse = None
+    most = params.max_iter  # the pass's own bound: a refinement from the half size takes few of them
     domain = params.domain if d is None else d.domain
     if rho0 is None and domain == "texture" and _starts_from_half(problem):
         # Solved before this size's problem is built, so that the two are not held at once.
@@ -378,9 +379,9 @@ def solve_albedo(
     deltas = ([] if warm_delta is None else [warm_delta]) + [params.delta]
     # The bar's share of the run with the smoother Huber, as measured: about 2/3 of the iterations.
     spans = [(0.0, 0.65), (0.65, 1.0)] if len(deltas) == 2 else [(0.0, 1.0)]
-    share = DEBIAS_SHARE_REFINED if coarse is not None and refine_iter is not None else DEBIAS_SHARE
+    pass_share = DEBIAS_SHARE_REFINED if coarse is not None and refine_iter is not None else DEBIAS_SHARE
     if debias:
-        spans = [(a * (1 - share), b * (1 - share)) for a, b in spans]
+        spans = [(a * (1 - pass_share), b * (1 - pass_share)) for a, b in spans]
     with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
         channels = list(pool.map(lambda c: channel(d, c, rho0[:, c]), range(problem.channels)))
         rho0 = None  # each channel has its own copy
@@ -401,11 +402,11 @@ def solve_albedo(
             d = with_edges_freed(plain, rho, params.albedo_edges, chromaticity=False)
             channels = list(pool.map(lambda c: channel(d, c, rho[:, c]), range(problem.channels)))
             rho = None
-            report = iteration_report(sub_progress(progress, 1 - share, 1.0))
-            pass_params = replace(params, max_iter=it + DEBIAS_MAX_ITER)
-            history, _ = iterate(channels, pass_params, report, lambda: check_cancel(cancel), t0, it, None, pool)
-            debiased = len(history) - 1
-            it += debiased
+            report = iteration_report(sub_progress(progress, 1 - pass_share, 1.0))
+            # A run of its own, as the lighting stage's passes are: as many iterations at most as the stage's.
+            pass_params = replace(params, max_iter=it + most)
+            freed, _ = iterate(channels, pass_params, report, lambda: check_cancel(cancel), t0, it, None, pool)
+            debiased = {"iterations": len(freed) - 1, "energy": freed[-1:]}
     rho, sigma = rescaled(d, channels)
     views, texture, seen = result_maps(problem, d, rho, views=views and not merged)
     info = {
@@ -416,7 +417,7 @@ def solve_albedo(
         "solved_size": problem.texture.size if d.domain == "texture" else None,
         "coarse_start": coarse,
         "data_model": d.data_model,
-        "debias_iterations": debiased if debias else None,
+        "debias": debiased if debias else None,
     }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
