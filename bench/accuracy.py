@@ -20,7 +20,9 @@ For each folder of ``--fixtures`` with a ``scene.json`` and a ``scene.blend``, t
 Columns, per channel R / G / B:
 
 * ``texture RMSE``: the issue's protocol: the albedo texture scaled per channel by the one factor that
-  minimises the RMSE, over the texels seen by a camera inside the UV islands (``core.evaluate.metrics.scaled_rmse``);
+  minimises the RMSE (``core.evaluate.metrics.scaled_rmse``), over the texels inside the UV islands that both the
+  row and ``project`` saw, as in ``bench/accuracy_quick.py`` (the JSON also has ``project_rmse`` on those texels
+  and ``texture_rmse_own`` on all the row saw);
 * ``views RMSE`` (scenes with per-view truth, ``gt_views/``): the paper's literal protocol (section 5.1): the
   m reflectance maps ``views/<camera>.exr`` against the true albedo each pixel saw, one factor per channel
   common to all maps, over the pixels on the mesh (truth coverage A > 0.5).
@@ -96,11 +98,15 @@ def rows_for(name, image=True):
     return rows
 
 
-def texture_rmse(albedo_path, gt):
-    """Scaled RMSE of the albedo texture over the seen texels inside the UV islands."""
+def read_albedo(albedo_path, gt):
+    """The albedo texture (RGB) and the texels it saw inside the UV islands."""
     est = read_exr(albedo_path)[0]
-    seen = (est[..., 3] > 0) & (gt[..., 3] > 0.5)
-    return scaled_rmse(est[..., :3], np.clip(gt[..., :3], 0, 1), seen).tolist(), int(seen.sum())
+    return est[..., :3], (est[..., 3] > 0) & (gt[..., 3] > 0.5)
+
+
+def texture_rmse(albedo, gt, texels):
+    """Scaled RMSE of ``albedo`` over ``texels``, per channel."""
+    return scaled_rmse(albedo, np.clip(gt[..., :3], 0, 1), texels).tolist()
 
 
 def views_rmse(out_dir, report, fixture_dir, record):
@@ -126,7 +132,7 @@ def run_fixture(name, fixture_dir, work, image=True):
         record = json.load(fh)
     gt = read_exr(os.path.join(fixture_dir, record["albedo_gt"]["file"]))[0]
     obj = record["mesh"]["object"]
-    out = []
+    out, albedos = [], {}
     for folder, label, args in rows_for(name, image):
         out_dir = os.path.join(work, name, folder)
         r = run_headless(
@@ -146,9 +152,16 @@ def run_fixture(name, fixture_dir, work, image=True):
             print(f"{name} / {label}: FAILED\n{r.log[-2000:]}", file=sys.stderr)
         else:
             rep = r.report
-            row["texture_rmse"], row["texels_compared"] = texture_rmse(
-                os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt
-            )
+            albedos[folder] = read_albedo(os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt)
+            albedo, seen = albedos[folder]
+            # On the texels both this row and `project` saw (projection leaves texels between sparse pixels
+            # unseen, the hardest, which the solve's splat sees); `project` first in rows_for.
+            proj = albedos.get("project")
+            texels = seen if proj is None else seen & proj[1]
+            row["texture_rmse"], row["texels_compared"] = texture_rmse(albedo, gt, texels), int(texels.sum())
+            if proj is not None and folder != "project":
+                row["project_rmse"] = texture_rmse(proj[0], gt, texels)
+                row["texture_rmse_own"] = texture_rmse(albedo, gt, seen)
             row["views_rmse"] = views_rmse(out_dir, rep, fixture_dir, record)
             row.update(
                 times_s=rep["times_s"],
@@ -177,6 +190,11 @@ def _ratio(project, row):
     return " / ".join(f"{p / max(x, 1e-12):.1f}x" for p, x in zip(project, row))
 
 
+def _project_rmse(row, project):
+    """`project`'s RMSE on the texels ``row`` was scored on (rows written before 2026-12-01: on its own)."""
+    return row.get("project_rmse") or project.get("texture_rmse")
+
+
 def table(rows) -> str:
     """The Markdown table of all rows."""
     lines = [
@@ -193,7 +211,7 @@ def table(rows) -> str:
                 r["fixture"],
                 r["row"],
                 _fmt(r.get("texture_rmse")),
-                "-" if is_project or proj is None else _ratio(proj.get("texture_rmse"), r.get("texture_rmse")),
+                "-" if is_project or proj is None else _ratio(_project_rmse(r, proj), r.get("texture_rmse")),
                 _fmt(r.get("views_rmse")),
                 "-" if is_project or paper is None else _fmt(paper[1]),
                 r["wall_s"],
@@ -223,7 +241,7 @@ def summary(rows) -> str:
             if r.get("key") != key or not r.get("texture_rmse") or not proj or not proj.get("texture_rmse"):
                 continue
             rmse.append(np.mean(r["texture_rmse"]))
-            base.append(np.mean(proj["texture_rmse"]))
+            base.append(np.mean(_project_rmse(r, proj)))
         if rmse:
             mean, geometric, least = improvement(base, rmse)
             lines.append(
