@@ -98,15 +98,19 @@ def rows_for(name, image=True):
     return rows
 
 
-def read_albedo(albedo_path, gt):
-    """The albedo texture (RGB) and the texels it saw inside the UV islands."""
+def seen_texels(albedo_path, gt):
+    """The texels inside the UV islands that the albedo texture at ``albedo_path`` saw."""
+    return (read_exr(albedo_path)[0][..., 3] > 0) & (gt[..., 3] > 0.5)
+
+
+def texture_rmse(albedo_path, gt, texels=None):
+    """Scaled RMSE of the albedo texture over the seen texels inside the UV islands (and in ``texels``, if
+    given), and how many texels that is."""
     est = read_exr(albedo_path)[0]
-    return est[..., :3], (est[..., 3] > 0) & (gt[..., 3] > 0.5)
-
-
-def texture_rmse(albedo, gt, texels):
-    """Scaled RMSE of ``albedo`` over ``texels``, per channel."""
-    return scaled_rmse(albedo, np.clip(gt[..., :3], 0, 1), texels).tolist()
+    seen = (est[..., 3] > 0) & (gt[..., 3] > 0.5)
+    if texels is not None:
+        seen &= texels
+    return scaled_rmse(est[..., :3], np.clip(gt[..., :3], 0, 1), seen).tolist(), int(seen.sum())
 
 
 def views_rmse(out_dir, report, fixture_dir, record):
@@ -132,7 +136,7 @@ def run_fixture(name, fixture_dir, work, image=True):
         record = json.load(fh)
     gt = read_exr(os.path.join(fixture_dir, record["albedo_gt"]["file"]))[0]
     obj = record["mesh"]["object"]
-    out, albedos = [], {}
+    out, paths = [], {}
     for folder, label, args in rows_for(name, image):
         out_dir = os.path.join(work, name, folder)
         r = run_headless(
@@ -152,16 +156,17 @@ def run_fixture(name, fixture_dir, work, image=True):
             print(f"{name} / {label}: FAILED\n{r.log[-2000:]}", file=sys.stderr)
         else:
             rep = r.report
-            albedos[folder] = read_albedo(os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt)
-            albedo, seen = albedos[folder]
+            paths[folder] = os.path.join(out_dir, f"{rep['object']}_albedo.exr")
             # On the texels both this row and `project` saw (projection leaves texels between sparse pixels
             # unseen, the hardest, which the solve's splat sees); `project` first in rows_for.
-            proj = albedos.get("project")
-            texels = seen if proj is None else seen & proj[1]
-            row["texture_rmse"], row["texels_compared"] = texture_rmse(albedo, gt, texels), int(texels.sum())
-            if proj is not None and folder != "project":
-                row["project_rmse"] = texture_rmse(proj[0], gt, texels)
-                row["texture_rmse_own"] = texture_rmse(albedo, gt, seen)
+            own = texture_rmse(paths[folder], gt)
+            proj = paths.get("project") if folder != "project" else None
+            if proj is None:
+                row["texture_rmse"], row["texels_compared"] = own
+            else:
+                both = seen_texels(paths[folder], gt) & seen_texels(proj, gt)
+                row["texture_rmse"], row["texels_compared"] = texture_rmse(paths[folder], gt, both)
+                row["project_rmse"], row["texture_rmse_own"] = texture_rmse(proj, gt, both)[0], own[0]
             row["views_rmse"] = views_rmse(out_dir, rep, fixture_dir, record)
             row.update(
                 times_s=rep["times_s"],
