@@ -150,7 +150,7 @@ def test_the_edge_passes_are_checked(bad):
 
 
 @pytest.mark.parametrize("name", ["light_edges", "albedo_edges", "albedo_debias"])
-def test_edge_scales_must_be_finite_and_not_negative(name):
+def test_edge_settings_must_be_finite_and_not_negative(name):
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match=name):
             SolverParams(**{name: bad}).check()
