@@ -237,11 +237,9 @@ def _start_builds(problem, params) -> dict:
     return out
 
 
-#: The share of :func:`solve_albedo`'s bar that its pass with the changes of its result freed takes, after a
-#: solve to convergence or after a few iterations refined from the half-size start (measured: 35 iterations
-#: after 32, 13 after 19; 16 after 2).
+#: The share of :func:`solve_albedo`'s bar that its pass with the changes of its result freed takes (measured:
+#: 35 iterations after 32, 13 after 19).
 DEBIAS_SHARE = 0.45
-DEBIAS_SHARE_REFINED = 0.85
 
 
 def debiases(params) -> bool:
@@ -275,7 +273,8 @@ def solve_albedo(
     params : core.solve.solver.SolverParams
         ``lam`` is the TV weight, lowered across the changes of colour of the
         start by ``albedo_edges`` (texture domain), and at ``albedo_debias`` or more solved once more with
-        the changes of its result freed (in at most ``max_iter`` iterations of its own); ``max_iter``,
+        the changes of its result freed (in at most ``max_iter`` iterations of its own; started from a
+        half-size solve, which made that pass, the changes of the start are freed instead); ``max_iter``,
         ``min_iter``, ``tol``, ``delta``, ``cg_iter``, ``threads``, ``extrapolate`` and
         ``max_texels_per_pixel`` apply as in :func:`core.solve.solver.solve`.
     rho0 : (n, C) array, optional
@@ -332,7 +331,7 @@ def solve_albedo(
         r.info["solved_size"] = size
         return r
     half = coarse = None
-    most = params.max_iter  # the pass's own bound: a refinement from the half size takes few of them
+    most = params.max_iter  # the pass's own bound
     domain = params.domain if d is None else d.domain
     if rho0 is None and domain == "texture" and _starts_from_half(problem):
         # Solved before this size's problem is built, so that the two are not held at once.
@@ -364,9 +363,12 @@ def solve_albedo(
         rho0 = _start(d, sigma, half)
         half = None
     plain = d
+    debias = debiases(params) and d.domain == "texture"
     if params.albedo_edges > 0 and d.domain == "texture":
-        d = with_edges_freed(d, rho0, params.albedo_edges)
-    debias = debiases(params) and d.domain == "texture" and not merged
+        # Started from a half-size solve that made the pass, its changes are the ones to free, of brightness too.
+        d = with_edges_freed(d, rho0, params.albedo_edges, chromaticity=not (debias and coarse is not None))
+    # The pass runs where the solve starts from the photos; a texture refined from its half size inherits it.
+    debias = debias and coarse is None
 
     def channel(d, c, rho):
         ch = Channel(d, c, params, rho, sigma[:, c])
@@ -379,9 +381,8 @@ def solve_albedo(
     deltas = ([] if warm_delta is None else [warm_delta]) + [params.delta]
     # The bar's share of the run with the smoother Huber, as measured: about 2/3 of the iterations.
     spans = [(0.0, 0.65), (0.65, 1.0)] if len(deltas) == 2 else [(0.0, 1.0)]
-    pass_share = DEBIAS_SHARE_REFINED if coarse is not None and refine_iter is not None else DEBIAS_SHARE
     if debias:
-        spans = [(a * (1 - pass_share), b * (1 - pass_share)) for a, b in spans]
+        spans = [(a * (1 - DEBIAS_SHARE), b * (1 - DEBIAS_SHARE)) for a, b in spans]
     with ThreadPoolExecutor(max_workers=channel_threads(params, problem.channels, d.obs_pixel.size)) as pool:
         channels = list(pool.map(lambda c: channel(d, c, rho0[:, c]), range(problem.channels)))
         rho0 = None  # each channel has its own copy
@@ -402,7 +403,7 @@ def solve_albedo(
             d = with_edges_freed(plain, rho, params.albedo_edges, chromaticity=False)
             channels = list(pool.map(lambda c: channel(d, c, rho[:, c]), range(problem.channels)))
             rho = None
-            report = iteration_report(sub_progress(progress, 1 - pass_share, 1.0))
+            report = iteration_report(sub_progress(progress, 1 - DEBIAS_SHARE, 1.0))
             # A run of its own, as the lighting stage's passes are: as many iterations at most as the stage's.
             pass_params = replace(params, max_iter=it + most)
             freed, _ = iterate(channels, pass_params, report, lambda: check_cancel(cancel), t0, it, None, pool)
