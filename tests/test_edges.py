@@ -114,6 +114,9 @@ def test_a_strong_albedo_weight_frees_the_changes_it_kept_and_their_height_comes
     assert 0 < freed.info["debias"]["iterations"] <= SolverParams().max_iter
     assert freed.info["debias"]["energy"][-1] < plain.energy[-1]  # the freed rows weigh less
     np.testing.assert_array_equal(below.texture, plain.texture)
+    # Without an edge scale there is nothing to free the changes by: no pass.
+    unscaled = solve_albedo(problem, scene.sigma, SolverParams(lam=10.0, albedo_debias=10.0, albedo_edges=0.0))
+    assert unscaled.info["debias"] is None
 
 
 def test_a_texture_refined_from_its_half_size_takes_the_pass_from_there():

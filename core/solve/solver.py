@@ -210,7 +210,8 @@ class SolverParams:
         Texture domain, the albedo stage: at a TV weight of at least this, the albedo is solved once more from
         its result, each TV row weighted by :func:`core.solve.edges.edge_weights` of that result's colour and
         brightness (the edge scale ``albedo_edges``): a strong TV lowers the height of every change it keeps,
-        and the regions so freed take their level from the photos (docs/measurements.md). 0: never.
+        and the regions so freed take their level from the photos (docs/measurements.md). 0, or
+        ``albedo_edges`` 0: never.
     """
 
     domain: str = "texture"

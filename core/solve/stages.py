@@ -244,8 +244,8 @@ DEBIAS_SHARE = 0.45
 
 def debiases(params) -> bool:
     """Whether :func:`solve_albedo` with ``params`` solves again with the changes of its result freed: at a TV
-    weight of at least ``params.albedo_debias`` (0: never)."""
-    return params.albedo_debias > 0 and params.lam >= params.albedo_debias
+    weight of at least ``params.albedo_debias`` (0: never), with an edge scale ``albedo_edges`` to free them by."""
+    return params.albedo_debias > 0 and params.albedo_edges > 0 and params.lam >= params.albedo_debias
 
 
 def solve_albedo(
