@@ -98,19 +98,21 @@ def rows_for(name, image=True):
     return rows
 
 
-def seen_texels(albedo_path, gt):
-    """The texels inside the UV islands that the albedo texture at ``albedo_path`` saw."""
-    return (read_exr(albedo_path)[0][..., 3] > 0) & (gt[..., 3] > 0.5)
-
-
-def texture_rmse(albedo_path, gt, texels=None):
-    """Scaled RMSE of the albedo texture over the seen texels inside the UV islands (and in ``texels``, if
-    given), and how many texels that is."""
+def read_albedo(albedo_path, gt):
+    """The albedo texture's RGB, and the texels inside the UV islands that it saw."""
     est = read_exr(albedo_path)[0]
-    seen = (est[..., 3] > 0) & (gt[..., 3] > 0.5)
-    if texels is not None:
-        seen &= texels
-    return scaled_rmse(est[..., :3], np.clip(gt[..., :3], 0, 1), seen).tolist(), int(seen.sum())
+    return est[..., :3], (est[..., 3] > 0) & (gt[..., 3] > 0.5)
+
+
+def rmse_on(albedo, gt, texels):
+    """Scaled RMSE of ``albedo`` over ``texels``, and how many texels that is."""
+    return scaled_rmse(albedo, np.clip(gt[..., :3], 0, 1), texels).tolist(), int(texels.sum())
+
+
+def texture_rmse(albedo_path, gt):
+    """Scaled RMSE of the albedo texture over the seen texels inside the UV islands, and how many."""
+    albedo, seen = read_albedo(albedo_path, gt)
+    return rmse_on(albedo, gt, seen)
 
 
 def views_rmse(out_dir, report, fixture_dir, record):
@@ -136,7 +138,7 @@ def run_fixture(name, fixture_dir, work, image=True):
         record = json.load(fh)
     gt = read_exr(os.path.join(fixture_dir, record["albedo_gt"]["file"]))[0]
     obj = record["mesh"]["object"]
-    out, paths = [], {}
+    out, albedos = [], {}
     for folder, label, args in rows_for(name, image):
         out_dir = os.path.join(work, name, folder)
         r = run_headless(
@@ -156,17 +158,17 @@ def run_fixture(name, fixture_dir, work, image=True):
             print(f"{name} / {label}: FAILED\n{r.log[-2000:]}", file=sys.stderr)
         else:
             rep = r.report
-            paths[folder] = os.path.join(out_dir, f"{rep['object']}_albedo.exr")
+            albedo, seen = albedos[folder] = read_albedo(os.path.join(out_dir, f"{rep['object']}_albedo.exr"), gt)
             # On the texels both this row and `project` saw (projection leaves texels between sparse pixels
             # unseen, the hardest, which the solve's splat sees); `project` first in rows_for.
-            own = texture_rmse(paths[folder], gt)
-            proj = paths.get("project") if folder != "project" else None
+            proj = albedos.get("project") if folder != "project" else None
             if proj is None:
-                row["texture_rmse"], row["texels_compared"] = own
+                row["texture_rmse"], row["texels_compared"] = rmse_on(albedo, gt, seen)
             else:
-                both = seen_texels(paths[folder], gt) & seen_texels(proj, gt)
-                row["texture_rmse"], row["texels_compared"] = texture_rmse(paths[folder], gt, both)
-                row["project_rmse"], row["texture_rmse_own"] = texture_rmse(proj, gt, both)[0], own[0]
+                both = seen & proj[1]
+                row["texture_rmse"], row["texels_compared"] = rmse_on(albedo, gt, both)
+                row["project_rmse"] = rmse_on(proj[0], gt, both)[0]
+                row["texture_rmse_own"] = rmse_on(albedo, gt, seen)[0]
             row["views_rmse"] = views_rmse(out_dir, rep, fixture_dir, record)
             row.update(
                 times_s=rep["times_s"],
