@@ -363,12 +363,13 @@ def solve_albedo(
         rho0 = _start(d, sigma, half)
         half = None
     plain = d
-    debias = debiases(params) and d.domain == "texture"
+    # The pass runs where the solve starts from the photos; a texture refined from its half-size solve, which made
+    # the pass, frees the changes of that start instead, of brightness too.
+    debias = debiases(params) and d.domain == "texture" and coarse is None
+    inherited = debiases(params) and d.domain == "texture" and coarse is not None
     if params.albedo_edges > 0 and d.domain == "texture":
-        # Started from a half-size solve that made the pass, its changes are the ones to free, of brightness too.
-        d = with_edges_freed(d, rho0, params.albedo_edges, chromaticity=not (debias and coarse is not None))
-    # The pass runs where the solve starts from the photos; a texture refined from its half size inherits it.
-    debias = debias and coarse is None
+        d = with_edges_freed(d, rho0, params.albedo_edges, chromaticity=not inherited)
+    debiased = None
 
     def channel(d, c, rho):
         ch = Channel(d, c, params, rho, sigma[:, c])
@@ -418,7 +419,7 @@ def solve_albedo(
         "solved_size": problem.texture.size if d.domain == "texture" else None,
         "coarse_start": coarse,
         "data_model": d.data_model,
-        "debias": debiased if debias else None,
+        "debias": debiased,
     }
     return Result(sigma=sigma, views=views, energy=history, iterations=it, texture=texture, seen=seen, info=info)
 
