@@ -47,10 +47,10 @@ import scipy.sparse.linalg as spla  # noqa: E402
 from core.evaluate.metrics import scaled_rmse  # noqa: E402
 from core.evaluate.synthetic import sphere_scene  # noqa: E402
 from core.geometry.correspondences import find_correspondences  # noqa: E402
+from core.geometry.sh import DIFFUSE, sh_basis  # noqa: E402
 from core.solve.discretization import image_domain  # noqa: E402
 from core.solve.huber import mm_weight  # noqa: E402
 from core.solve.problem import Problem  # noqa: E402
-from core.solve.sh import DIFFUSE, sh_basis  # noqa: E402
 from core.solve.solver import SolverParams, energy  # noqa: E402
 from core.solve.stages import solve  # noqa: E402
 

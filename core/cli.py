@@ -47,13 +47,13 @@ import numpy as np
 
 from .errors import DelightError
 from .failures import DEBUG_HELP, report_failure
+from .geometry.sh import SH_BASIS_NAMES
 from .io.bundle import load_bundle
 from .io.outputs import REPORT, channel_names, lighting_files, lighting_outputs, prepare_outputs, rgba, view_files
 from .io.outputs import write_outputs as _write_all
 from .options import SOLVER_FIELDS, add_arguments, check
 from .progress import ProgressPrinter
 from .solve.lambda_choice import auto_lambda, describe_lambda
-from .solve.sh import SH_BASIS_NAMES
 from .solve.solver import SolverParams
 from .solve.stages import solve
 

@@ -13,8 +13,7 @@ from core.solve.ambiguity import (
     tilted_lighting,
 )
 from core.solve.discretization import texture_domain
-from core.solve.lighting import shading
-from core.solve.sh import view_normal_equations
+from core.solve.lighting import shading, view_normal_equations
 from core.solve.solver import SolverParams, solve_joint
 from core.solve.stages import solve
 

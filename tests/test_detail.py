@@ -15,12 +15,12 @@ from core.geometry.bake import bake_rows, bake_view, row_bands
 from core.geometry.bilinear import interpolate
 from core.geometry.camera import Camera
 from core.geometry.raycast import Triangles
+from core.geometry.sh import sh_basis
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
 from core.pipeline import DETAIL_MIN_COLOUR_TEXTURE, Options, compute, schedule, solve_parts, wants_detail
 from core.progress import shares, stage_of
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
-from core.solve.sh import sh_basis
 from core.texture.detail import agreement, detail_albedo, view_shadings
 
 N = 256  # texture

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from core.geometry.sh import DIFFUSE, sh_basis
 from core.io.envmap import (
     add_sun,
     envmap_image,
@@ -14,7 +15,6 @@ from core.io.envmap import (
     radiance_sh,
     world_lighting,
 )
-from core.solve.sh import DIFFUSE, sh_basis
 
 # A soft sky brighter towards +Z, -Y and +X, with some band 2: positive everywhere, so nothing is clamped.
 SIGMA = np.array(

@@ -86,8 +86,8 @@ def test_bad_lighting_params():
 
 @pytest.mark.parametrize("lighting", ["per_view", "coupled"])
 def test_a_25_coefficient_transfer_solves(exposed, lighting):
+    from core.geometry.sh import sh_basis
     from core.geometry.transfer import open_factor
-    from core.solve.sh import sh_basis
 
     _, problem, _ = exposed
     p = problem
@@ -102,7 +102,7 @@ def test_a_25_coefficient_transfer_solves(exposed, lighting):
 
 def _with_sun_column(problem, scene, strength):
     """The problem with a sun-like last transfer column ``max(0, n . w)``, its photos lit by it at ``strength``."""
-    from core.solve.sh import sh_basis
+    from core.geometry.sh import sh_basis
 
     w = np.array([0.5, -0.3, 0.8]) / np.linalg.norm([0.5, -0.3, 0.8])
     images, transfer = [], []

@@ -5,13 +5,13 @@ import scipy.sparse.linalg as spla
 
 from core.evaluate.synthetic import sphere_scene
 from core.geometry.correspondences import find_correspondences
+from core.geometry.sh import DIFFUSE
 from core.solve import multigrid
 from core.solve.cg import pcg
 from core.solve.discretization import image_domain
 from core.solve.huber import mm_weight
 from core.solve.multigrid import Hierarchy, block_grid, surface_grid
 from core.solve.problem import Problem
-from core.solve.sh import DIFFUSE
 from core.solve.solver import SolverParams
 from core.solve.stages import solve
 

@@ -14,6 +14,7 @@ import pytest
 from test_bundle_cli import ROOT, make_problem
 
 from core.errors import Cancelled, DelightError
+from core.geometry.sh import SH_BASIS_NAMES
 from core.io import outputs
 from core.io.bundle import save_bundle
 from core.io.exr import read_exr
@@ -29,7 +30,6 @@ from core.io.outputs import (
     view_files,
     write_outputs,
 )
-from core.solve.sh import SH_BASIS_NAMES
 
 
 def chmod_stops_writes(tmp_path) -> bool:

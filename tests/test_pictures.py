@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from core.evaluate.pictures import BACKGROUND, grid, lighting_spheres, shade_sphere, sphere_normals, to_srgb8
+from core.geometry.sh import DIFFUSE
 from core.io.photos import linear_to_srgb, srgb_to_linear
-from core.solve.sh import DIFFUSE
 
 
 def test_srgb_curve_round_trips_every_8_bit_code():
@@ -45,7 +45,7 @@ def test_lighting_spheres_share_one_exposure():
     np.testing.assert_array_equal(pics[:, ~inside], np.broadcast_to(BACKGROUND, (2, (~inside).sum(), 3)))
     # A light from the right (+X) lights the right of the sphere.
     side = np.zeros((1, 1, 9))
-    side[0, 0, 3], side[0, 0, 0] = 1.0, 0.8  # constant + x (the basis of core.solve.sh)
+    side[0, 0, 3], side[0, 0, 0] = 1.0, 0.8  # constant + x (the basis of core.geometry.sh)
     p = lighting_spheres(side, size=20)[0, 10, :, 0]
     assert p[17] > p[10] > p[2]
 

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
+from core.geometry.sh import sh_basis, sh_degree
 from core.geometry.transfer import sphere_directions
 from core.solve.huber import huber, majorant, mm_weight
-from core.solve.sh import sh_basis, sh_degree, view_normal_equations, weighted_gram
+from core.solve.lighting import view_normal_equations, weighted_gram
 
 
 def test_sh_basis_matches_closed_form():

@@ -230,7 +230,7 @@ def test_output_scale_convention(varying):
     # Mean shading over the observations is 1, so the albedo is in image units.
     r = solve(varying.problem, SolverParams(domain="texture", lam=0.1, max_iter=10))
     p = varying.problem
-    from core.solve.sh import sh_basis
+    from core.geometry.sh import sh_basis
 
     shade = np.concatenate(
         [sh_basis(n[m], np.float64) @ r.sigma[v].T for v, (n, m) in enumerate(zip(p.normals, p.masks))]

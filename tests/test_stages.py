@@ -7,11 +7,11 @@ import pytest
 
 from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
+from core.geometry.sh import sh_basis
 from core.solve import stages
 from core.solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL, data_model_for, pixels_per_texel
 from core.solve.lighting import floored, split_gains
 from core.solve.problem import Problem
-from core.solve.sh import sh_basis
 from core.solve.solver import SolverParams
 from core.solve.stages import (
     COLOUR_SPARSITY_REFERENCE,

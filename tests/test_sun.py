@@ -139,10 +139,10 @@ def test_the_pipeline_goes_on_without_a_sun_it_cannot_search_for(scene):
 
 
 def test_the_transfer_rows_are_nu_then_the_sun_column_with_shadows(scene):
+    from core.geometry.sh import sh_basis
     from core.geometry.sun import SunLight
     from core.geometry.transfer import transfer_rows
     from core.solve.problem import row_blocks
-    from core.solve.sh import sh_basis
 
     _, masks, positions, normals = _views(scene, 1.0)
     m = masks[0]

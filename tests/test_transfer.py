@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from core.geometry.sh import sh_basis
 from core.geometry.transfer import ShadowMap, occlusion_transfer, pixel_transfer, sphere_directions, visibility
-from core.solve.sh import sh_basis
 
 
 def _quad(p0, p1, p2, p3):
@@ -134,7 +134,7 @@ def test_pixel_transfer_of_open_surface_is_nu():
 
 def test_higher_orders_are_spherical_harmonics():
     # Orthogonal over the sphere (Fibonacci lattice quadrature), so each band is its own.
-    from core.solve.sh import sh_basis, sh_degree
+    from core.geometry.sh import sh_basis, sh_degree
 
     d = sphere_directions(20000)
     Y = sh_basis(d, np.float64, order=4)

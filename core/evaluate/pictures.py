@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.sh import sh_basis
 from ..io.photos import linear_to_srgb
-from ..solve.sh import sh_basis
 
 __all__ = ["to_srgb8", "sphere_normals", "shade_sphere", "lighting_spheres", "grid", "BACKGROUND"]
 
@@ -55,7 +55,7 @@ def sphere_normals(size: int):
 def shade_sphere(sh, size: int = 96, sun=None) -> np.ndarray:
     """Linear shading ``sigma . nu(n)`` of the front-facing sphere, ``(size, size, C)``, NaN outside.
 
-    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.solve.sh`; with ``sun`` (the direction
+    ``sh`` is ``(C, 9)`` (or ``(9,)``), in the basis of :mod:`core.geometry.sh`; with ``sun`` (the direction
     towards it) ``(C, 10)``, the last coefficient the sun's, shading ``max(0, n . sun)`` (a sphere casts
     no shadow on itself).
     """

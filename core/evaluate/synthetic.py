@@ -14,9 +14,9 @@ import numpy as np
 
 from ..geometry.bilinear import interpolate
 from ..geometry.camera import Camera
+from ..geometry.sh import sh_basis
 from ..geometry.texels import bilinear_texels
 from ..solve.problem import Problem, TextureLayout
-from ..solve.sh import sh_basis
 
 __all__ = ["SyntheticScene", "sphere_scene"]
 

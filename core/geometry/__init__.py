@@ -1,5 +1,5 @@
 """The scene's geometry seen by the cameras: pinhole cameras, ray casting and the per-pixel bake, the texel grid
-of the UV map, correspondences between views, bilinear lookups.
+of the UV map, correspondences between views, bilinear lookups, the spherical-harmonics basis of the normal.
 """
 
 from .bake import ViewBake, bake_view, bake_views
@@ -7,6 +7,7 @@ from .bilinear import clamped_corners, interpolate, masked_corners
 from .camera import Camera
 from .correspondences import Correspondences, find_correspondences, neighbour_views
 from .raycast import RayHits, raycast
+from .sh import DIFFUSE, SH_BASIS_NAMES, sh_basis, sphere_directions
 from .texels import (
     STRETCH_FACTOR,
     TextureLayout,
@@ -43,4 +44,8 @@ __all__ = [
     "clamped_corners",
     "masked_corners",
     "interpolate",
+    "sh_basis",
+    "sphere_directions",
+    "DIFFUSE",
+    "SH_BASIS_NAMES",
 ]

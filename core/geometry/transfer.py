@@ -1,6 +1,6 @@
 """Occlusion-aware SH transfer: how much of each lighting coefficient reaches a surface point.
 
-The paper shades a point with normal n as ``sigma . nu(n)`` (:mod:`core.solve.sh`),
+The paper shades a point with normal n as ``sigma . nu(n)`` (:mod:`core.geometry.sh`),
 which is exact for a convex object: every direction of the hemisphere around n
 sees the sky. In a concavity (under the chin, in the eye sockets, where the
 object meets its base) part of the hemisphere is blocked and the true shading is
@@ -33,9 +33,9 @@ import numpy as np
 
 from ..masks import masked
 from ..parallel import thread_map
-from ..solve.sh import sh_basis, sh_degree, sphere_directions
 from .camera import Camera
 from .raycast import Triangles, raycast
+from .sh import sh_basis, sh_degree, sphere_directions
 from .texels import bilinear_texels, texel_index, texel_of_uv
 
 __all__ = [
@@ -222,7 +222,7 @@ def occlusion_transfer(
     surface around, taken as a uniform radiance ``bounce`` times the sky's
     mean (an albedo times a shading of about the sky's), which gives back
     that fraction of the blocked constant term. ``order`` 3 or 4 gives
-    ``(order + 1)^2`` coefficients (:func:`core.solve.sh.sh_basis`); bands
+    ``(order + 1)^2`` coefficients (:func:`core.geometry.sh.sh_basis`); bands
     above 2 are scaled as band 2 is. ``threads``: as :func:`visibility`.
     """
     dirs = sphere_directions(n_directions)

@@ -1,6 +1,6 @@
 """The estimated lighting as an environment image: equirectangular, in Blender's world convention.
 
-The solver's lighting ``sigma`` (9 coefficients per channel, :mod:`core.solve.sh`)
+The solver's lighting ``sigma`` (9 coefficients per channel, :mod:`core.geometry.sh`)
 is a *shading*: a photo is the albedo times ``sigma . T(x)``, where the
 transfer T of an open point is ``nu(n)`` (:mod:`core.geometry.transfer`). The
 distant radiance ``L(w) = sum_k c_k nu_k(w)`` (w the unit world direction
@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.sh import sh_basis, sh_degree
 from ..geometry.transfer import A_BAND
-from ..solve.sh import sh_basis, sh_degree
 
 __all__ = [
     "ENVMAP_SIZE",

@@ -82,8 +82,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Cancelled, DelightError
+from ..geometry.sh import SH_BASIS_NAMES
 from ..parallel import resolve_threads, thread_map
-from ..solve.sh import SH_BASIS_NAMES
 from .envmap import add_sun, envmap_image, radiance_sh, world_lighting
 from .exr import compression_threads, write_exr
 from .jsonio import json_value

@@ -2,6 +2,7 @@
 minimization loop with CG and multigrid, coarse-to-fine levels, and the choice of lambda.
 """
 
+from ..geometry.sh import DIFFUSE, SH_BASIS_NAMES, sh_basis
 from .cg import pcg
 from .discretization import Discretization, image_domain, texture_domain
 from .huber import huber, huber_inplace, majorant, mm_weight
@@ -14,10 +15,10 @@ from .lambda_choice import (
     describe_lambda,
     lighting_variation,
 )
+from .lighting import weighted_gram
 from .multigrid import Hierarchy, block_grid, surface_grid
 from .problem import Correspondences, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import DIFFUSE, SH_BASIS_NAMES, sh_basis, weighted_gram
 from .solver import Result, SolverParams, energy, solve_joint
 from .spmv import matvec_into
 from .stages import solve

@@ -28,13 +28,13 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from ..geometry.sh import sphere_directions
 from ..masks import masked
 from ..progress import StepCounter, check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
-from .lighting import division_start, shading
+from .lighting import division_start, shading, view_normal_equations
 from .problem import SUN_COLUMNS
-from .sh import sphere_directions, view_normal_equations
 from .solver import Channel, Result, channel_threads, continued_result, stalled
 
 __all__ = ["TILT_LENGTHS", "ENTROPY_WINDOW", "tilt_vectors", "tilted_lighting", "albedo_entropy", "tilt_search"]

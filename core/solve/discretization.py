@@ -59,12 +59,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.bilinear import masked_corners
+from ..geometry.sh import sh_basis
 from ..geometry.texels import bilinear_texels, nearest_texel
 from ..masks import masked
 from ..parallel import start, thread_map
 from .highlights import clipped_regions
 from .problem import Problem, stacked_rows
-from .sh import sh_basis
 from .spmv import PairNormal, scatter_add
 
 __all__ = [

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.sh import sh_basis
 from ..geometry.texels import texel_index
 from ..masks import masked
-from .sh import sh_basis
 
 __all__ = [
     "lighting_variation",

@@ -48,17 +48,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from ..geometry.sh import diffuse
 from ..memory import release_free_memory
 from ..parallel import resolve_threads
 from ..progress import check_cancel
 from .cg import pcg
 from .discretization import Discretization, data_model_for, image_domain, texture_domain
 from .huber import huber_inplace, mm_weight
-from .lighting import Coupling, per_view_lighting_step, shading, shared_lighting_step
+from .lighting import Coupling, per_view_lighting_step, shading, shared_lighting_step, view_normal_equations
 from .multigrid import Hierarchy, block_grid
 from .problem import SUN_COLUMNS, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .sh import diffuse, view_normal_equations
 from .spmv import matvec_into, scatter_add
 
 __all__ = [

@@ -23,9 +23,9 @@ from conftest import (  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
+from blender_addon.core.geometry.sh import DIFFUSE, sh_basis  # noqa: E402
 from blender_addon.core.io.envmap import add_sun, envmap_image, equirect_uv, project_envmap, radiance_sh  # noqa: E402
 from blender_addon.core.io.exr import read_exr, write_exr  # noqa: E402
-from blender_addon.core.solve.sh import DIFFUSE, sh_basis  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -11,8 +11,6 @@ import numpy as np
 
 __all__ = [
     "sh_basis",
-    "weighted_gram",
-    "view_normal_equations",
     "sh_degree",
     "diffuse",
     "sphere_directions",
@@ -101,40 +99,6 @@ def diffuse(k: int = 9) -> np.ndarray:
     out = np.zeros(k)
     out[3] = 1.0
     return out
-
-
-def weighted_gram(nu: np.ndarray, w: np.ndarray, nu_t: np.ndarray | None = None) -> np.ndarray:
-    """``sum_p w_p nu_p nu_p^T``: the ``(K, K)`` normal matrix of a lighting fit over rows ``nu`` with weights ``w``.
-
-    One matrix product in nu's precision (BLAS), which reads nu once: the sigma-step makes one per view and
-    channel every iteration. ``np.dot``, not ``@``: NumPy's matmul holds the GIL, and the channels' threads
-    then wait on each other (docs/measurements.md). ``nu_t``, if given, is ``nu.T`` with contiguous rows (the
-    same values): weighting it row by row is faster than weighting nu's columns.
-    """
-    w = w.astype(nu.dtype, copy=False)
-    left = (nu * w[:, None]).T if nu_t is None else nu_t * w
-    return np.dot(left, nu)
-
-
-def view_normal_equations(nu, offsets, g, h=None, dtype=np.float64, nu_t=None):
-    """Per view v (rows ``offsets[v]:offsets[v + 1]``): ``sum_p g_p nu_p nu_p^T`` and ``sum_p h_p nu_p``.
-
-    Computed in ``dtype`` (float32: the sigma-step's BLAS products); returned as float64 arrays ``(m, K, K)``
-    and ``(m, K)``, the former unset when ``g`` is None and the latter when ``h`` is. ``nu_t``: as
-    :func:`weighted_gram`, used when it is of ``dtype``.
-    """
-    m, k = len(offsets) - 1, nu.shape[1]
-    Ms, bs = np.empty((m, k, k)), np.empty((m, k))
-    if nu_t is not None and nu_t.dtype != dtype:
-        nu_t = None
-    for v in range(m):
-        lo, hi = offsets[v], offsets[v + 1]
-        rows = nu[lo:hi].astype(dtype, copy=False)
-        if g is not None:
-            Ms[v] = weighted_gram(rows, g[lo:hi], None if nu_t is None else nu_t[:, lo:hi])
-        if h is not None:
-            bs[v] = np.dot(h[lo:hi].astype(dtype, copy=False), rows)  # np.dot releases the GIL, @ does not
-    return Ms, bs
 
 
 def sphere_directions(k: int, min_z: float = -1.0) -> np.ndarray:
