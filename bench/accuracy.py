@@ -3,7 +3,7 @@
 Run by hand (not a test; about 15-30 minutes on 2 cores)::
 
     .venv/bin/python bench/accuracy.py [--fixtures blend_fixtures] [--only lambert_sky ...]
-        [--work build/bench/accuracy] [--json bench/accuracy.json]
+        [--work build/bench/accuracy] [--json bench/results/accuracy.json]
 
 For each folder of ``--fixtures`` with a ``scene.json`` and a ``scene.blend``, three rows, each a fresh
 ``python -m blender_addon`` process (:mod:`bench.headless`), texture size = the ground truth's size:
@@ -43,7 +43,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from bench.headless import ROOT, commit, machine, run_headless  # noqa: E402
+from bench.headless import RESULTS, ROOT, commit, machine, run_headless  # noqa: E402
 from core.evaluate.metrics import scaled_rmse  # noqa: E402
 from core.io.exr import read_exr  # noqa: E402
 
@@ -264,7 +264,7 @@ def main(argv=None):
     p.add_argument(
         "--work", default=os.path.join(ROOT, "build", "bench", "accuracy"), help="where the runs write their outputs"
     )
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "accuracy.json"), help="results file")
+    p.add_argument("--json", default=os.path.join(RESULTS, "accuracy.json"), help="results file")
     p.add_argument("--no-image", action="store_true", help="leave out the image-domain (paper) rows")
     a = p.parse_args(argv)
     found = fixtures(a.fixtures, a.only)

@@ -3,7 +3,7 @@
 Run by hand (not a test), on rows written by ``bench/accuracy_quick.py --json``::
 
     .venv/bin/python bench/compare_runs.py \\
-        --run default bench/accuracy_quick.json bench/accuracy_unseen.json \\
+        --run default bench/results/accuracy_quick.json bench/results/accuracy_unseen.json \\
         --run lam8 build/lam8_quick.json build/lam8_unseen.json
 
 Each ``--run`` is a label and the JSON files of one candidate, one per set of scenes, in the same order in

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from bench.headless import ROOT, commit, machine, run_headless  # noqa: E402
+from bench.headless import RESULTS, ROOT, commit, machine, run_headless  # noqa: E402
 
 __all__ = ["CASES", "Case", "build_scene", "Monitor", "run_case", "main"]
 
@@ -221,6 +221,7 @@ def run_case(name, work, json_path, extra=()):
         "least_available_mb": mon.least_available_mb,
         "solver_info": {k: v for k, v in rep["solver_info"].items() if k != "elapsed"},
     }
+    os.makedirs(os.path.dirname(os.path.abspath(json_path)), exist_ok=True)
     with open(json_path, "w") as fh:
         json.dump(result, fh, indent=1)
     size = result["photo_size"]
@@ -245,4 +246,4 @@ def run_case(name, work, json_path, extra=()):
 def main(name, work=None, json_path=None, extra=()):
     work = work or os.path.join(ROOT, "build", "bench", "full_res")
     os.makedirs(work, exist_ok=True)
-    return run_case(name, work, json_path or os.path.join(ROOT, "bench", f"speed_{name}.json"), extra)
+    return run_case(name, work, json_path or os.path.join(RESULTS, f"speed_{name}.json"), extra)

@@ -16,8 +16,10 @@ import time
 from dataclasses import dataclass
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: Where a benchmark writes its record by default: the recorded runs that docs/measurements.md cites.
+RESULTS = os.path.join(ROOT, "bench", "results")
 
-__all__ = ["ROOT", "Run", "run_headless", "machine", "commit"]
+__all__ = ["ROOT", "RESULTS", "Run", "run_headless", "machine", "commit"]
 
 
 @dataclass

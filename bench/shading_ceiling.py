@@ -2,8 +2,9 @@
 
 Run by hand (not a test)::
 
-    .venv/bin/python bench/shading_ceiling.py [--only bowl_checker rock_photo] [--json bench/shading_ceiling.json]
-    .venv/bin/python bench/shading_ceiling.py --unseen [--json bench/shading_ceiling_unseen.json]
+    .venv/bin/python bench/shading_ceiling.py [--only bowl_checker rock_photo]
+        [--json bench/results/shading_ceiling.json]
+    .venv/bin/python bench/shading_ceiling.py --unseen [--json bench/results/shading_ceiling_unseen.json]
 
 Each fixture of ``blend_fixtures/`` is rendered again, with Cycles' diffuse passes saved per photo
 (``make_fixtures.generate(..., shading_views=True)``), into ``build/bench/shading/``; the renders are kept while

@@ -2,7 +2,7 @@
 
 Run by hand (not a test)::
 
-    .venv/bin/python bench/speed.py [--work build/bench/speed] [--json bench/speed.json] [--method texture]
+    .venv/bin/python bench/speed.py [--work build/bench/speed] [--json bench/results/speed.json] [--method texture]
         [--threads N] [--scaling]
     .venv/bin/python bench/speed.py --case 13x1mp|13x12mp|50x24mp|150x12mp [--case-args '--working-res 0.5']
 
@@ -28,7 +28,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from bench.headless import ROOT, commit, machine, run_headless  # noqa: E402
+from bench.headless import RESULTS, ROOT, commit, machine, run_headless  # noqa: E402
 
 RESOLUTION = (960, 540)
 N_CAMERAS = 13
@@ -135,7 +135,9 @@ def print_scaling(rows):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--work", default=None, help="default build/bench/speed (build/bench/full_res for --case)")
-    p.add_argument("--json", default=None, help="default bench/speed.json (bench/speed_<case>.json for --case)")
+    p.add_argument(
+        "--json", default=None, help="default bench/results/speed.json (bench/results/speed_<case>.json for --case)"
+    )
     p.add_argument("--method", default="texture", choices=["texture", "image", "project"])
     p.add_argument("--threads", type=int, help="threads of the run (default: every core)")
     p.add_argument(
@@ -158,7 +160,7 @@ def main(argv=None):
 
         return full_res(a.case, a.work, a.json, shlex.split(a.case_args))
     a.work = a.work or os.path.join(ROOT, "build", "bench", "speed")
-    a.json = a.json or os.path.join(ROOT, "bench", "speed.json")
+    a.json = a.json or os.path.join(RESULTS, "speed.json")
     os.makedirs(a.work, exist_ok=True)
     blend = render_scene(os.path.abspath(a.work))
     started = datetime.datetime.now().isoformat(timespec="seconds")
@@ -177,6 +179,7 @@ def main(argv=None):
     }
     if a.scaling:
         result["scaling"] = [{k: v for k, v in r.items() if k != "solver_info"} for r in rows]
+    os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
     with open(a.json, "w") as fh:
         json.dump(result, fh, indent=1)
     print(f"\ncommit {result['commit']}, {result['machine']}, {started}, load average {row['load_before']:.1f}")

@@ -2,7 +2,7 @@
 
 Run by hand (not a test)::
 
-    .venv/bin/python bench/sun_direction.py [--only photo_sun rock_photo] [--json bench/sun_direction.json]
+    .venv/bin/python bench/sun_direction.py [--only photo_sun rock_photo] [--json bench/results/sun_direction.json]
 
 Each fixture is baked once and cached as in ``bench/accuracy_quick.py``. For every fixture the search runs on
 its photos and bakes; where ``scene.json`` gives a sun (``lighting.direction_to_sun``) the angle between it and
