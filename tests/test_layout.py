@@ -1,8 +1,12 @@
-"""The core is pure NumPy/SciPy: importing every one of its modules never imports bpy."""
+"""The core is pure NumPy/SciPy: importing every one of its modules never imports bpy; and its packages import
+only the ones below them, in the order the data flows."""
 
+import ast
 import os
 import subprocess
 import sys
+
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -27,3 +31,23 @@ def test_core_never_imports_bpy():
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+#: The data flows geometry -> solve -> io -> texture (-> core.pipeline); each package may import those before it.
+FLOW = ("geometry", "solve", "io", "texture")
+
+
+@pytest.mark.parametrize("index", range(len(FLOW)))
+def test_a_core_package_imports_only_the_packages_before_it_in_the_flow(index):
+    package = FLOW[index]
+    code = (
+        "import importlib, pkgutil, sys\n"
+        f"p = importlib.import_module('core.{package}')\n"
+        f"for m in pkgutil.iter_modules(p.__path__): importlib.import_module('core.{package}.' + m.name)\n"
+        "print(sorted({'.'.join(k.split('.')[:2]) for k in sys.modules if k.startswith('core.')}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    loaded = {m.split(".")[1] for m in ast.literal_eval(out.stdout)}
+    assert package in loaded
+    later = set(FLOW[index + 1 :]) | {"pipeline", "cli", "evaluate", "options"}
+    assert not loaded & later, f"core.{package} imports {sorted(loaded & later)}, which come after it"
