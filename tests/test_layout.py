@@ -21,16 +21,18 @@ def core_modules():
     return out
 
 
+def loaded_after_importing(mods):
+    """The names of the modules a fresh interpreter holds after importing ``mods``."""
+    code = f"import importlib, sys\nfor m in {mods!r}: importlib.import_module(m)\nprint(sorted(sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    return ast.literal_eval(out.stdout)
+
+
 def test_core_never_imports_bpy():
     mods = core_modules()
     assert len(mods) > 20 and "core.solve.solver" in mods
-    code = (
-        "import importlib, sys\n"
-        f"for m in {mods!r}: importlib.import_module(m)\n"
-        "print(sorted(m for m in sys.modules if m == 'bpy' or m.startswith(('bpy.', 'mathutils', 'bmesh'))))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]", out.stdout
+    loaded = [m for m in loaded_after_importing(mods) if m == "bpy" or m.startswith(("bpy.", "mathutils", "bmesh"))]
+    assert loaded == [], loaded
 
 
 #: The data flows geometry -> solve -> io -> texture (-> core.pipeline); each package may import those before it.
@@ -40,14 +42,9 @@ FLOW = ("geometry", "solve", "io", "texture")
 @pytest.mark.parametrize("index", range(len(FLOW)))
 def test_a_core_package_imports_only_the_packages_before_it_in_the_flow(index):
     package = FLOW[index]
-    code = (
-        "import importlib, pkgutil, sys\n"
-        f"p = importlib.import_module('core.{package}')\n"
-        f"for m in pkgutil.iter_modules(p.__path__): importlib.import_module('core.{package}.' + m.name)\n"
-        "print(sorted({'.'.join(k.split('.')[:2]) for k in sys.modules if k.startswith('core.')}))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    loaded = {m.split(".")[1] for m in ast.literal_eval(out.stdout)}
+    mods = [m for m in core_modules() if m.startswith(f"core.{package}.")]
+    assert mods
+    loaded = {m.split(".")[1] for m in loaded_after_importing(mods) if m.startswith("core.")}
     assert package in loaded
     later = set(FLOW[index + 1 :]) | {"pipeline", "cli", "evaluate", "options"}
     assert not loaded & later, f"core.{package} imports {sorted(loaded & later)}, which come after it"

@@ -331,7 +331,6 @@ def solve_albedo(
         r.info["solved_size"] = size
         return r
     half = coarse = None
-    most = params.max_iter  # the pass's own bound
     domain = params.domain if d is None else d.domain
     if rho0 is None and domain == "texture" and _starts_from_half(problem):
         # Solved before this size's problem is built, so that the two are not held at once.
@@ -365,8 +364,8 @@ def solve_albedo(
     plain = d
     # The pass runs where the solve starts from the photos; a texture refined from its half-size solve, which made
     # the pass, frees the changes of that start instead, of brightness too.
-    debias = debiases(params) and d.domain == "texture" and coarse is None
-    inherited = debiases(params) and d.domain == "texture" and coarse is not None
+    frees = debiases(params) and d.domain == "texture"
+    debias, inherited = frees and coarse is None, frees and coarse is not None
     if params.albedo_edges > 0 and d.domain == "texture":
         d = with_edges_freed(d, rho0, params.albedo_edges, chromaticity=not inherited)
     debiased = None
@@ -405,8 +404,9 @@ def solve_albedo(
             channels = list(pool.map(lambda c: channel(d, c, rho[:, c]), range(problem.channels)))
             rho = None
             report = iteration_report(sub_progress(progress, 1 - DEBIAS_SHARE, 1.0))
-            # A run of its own, as the lighting stage's passes are: as many iterations at most as the stage's.
-            pass_params = replace(params, max_iter=it + most)
+            # A run of its own, as the lighting stage's passes are: as many iterations at most as the stage's
+            # (params are the caller's here: only a refinement from the half size, which has no pass, cuts them).
+            pass_params = replace(params, max_iter=it + params.max_iter)
             freed, _ = iterate(channels, pass_params, report, lambda: check_cancel(cancel), t0, it, None, pool)
             debiased = {"iterations": len(freed) - 1, "energy": freed[-1:]}
     rho, sigma = rescaled(d, channels)
