@@ -11,7 +11,7 @@ The first run of a fixture reads its .blend through bpy and bakes it exactly as 
 
 * ``project``: the photos fused onto the texture (no delighting), the baseline;
 * ``ours``: :func:`core.pipeline.compute` with the default options, or with ``--set`` overrides
-  (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.solver.SolverParams`);
+  (``lam``, ``max_iter`` go to the options, every other key to :class:`core.solve.params.SolverParams`);
 * ``ceiling`` (unless ``--no-ceiling``): the true-lighting ceiling: the lighting fitted by least squares to
   the photos and the true albedo (per view, the shading model the run used: the occlusion-aware transfer by
   default, with the sun's term at the direction the run found where it found one), then the albedo solved
@@ -241,7 +241,7 @@ def true_lighting(inputs, bakes, gt, texels, size, ours, sets):
     from core.pipeline import Options
     from core.solve.discretization import data_model_for, texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error
-    from core.solve.solver import SolverParams
+    from core.solve.params import SolverParams
     from core.solve.stages import ALBEDO_LAMBDA, solve_albedo
 
     # The albedo stage's weight as our run had it (adapted to the colour texture by default).

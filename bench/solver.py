@@ -50,8 +50,9 @@ from core.geometry.correspondences import find_correspondences  # noqa: E402
 from core.geometry.sh import DIFFUSE, sh_basis  # noqa: E402
 from core.solve.discretization import image_domain  # noqa: E402
 from core.solve.huber import mm_weight  # noqa: E402
+from core.solve.params import SolverParams
 from core.solve.problem import Problem  # noqa: E402
-from core.solve.solver import SolverParams, energy  # noqa: E402
+from core.solve.solver import energy  # noqa: E402
 from core.solve.stages import solve  # noqa: E402
 
 #: CG iterations per rho-step of the reference (the paper does not say; our Jacobi default).

@@ -54,7 +54,7 @@ from .io.outputs import write_outputs as _write_all
 from .options import SOLVER_FIELDS, add_arguments, check
 from .progress import ProgressPrinter
 from .solve.lambda_choice import auto_lambda, describe_lambda
-from .solve.solver import SolverParams
+from .solve.params import SolverParams
 from .solve.stages import solve
 
 __all__ = ["main", "build_parser", "write_outputs", "SH_BASIS"]
@@ -72,7 +72,7 @@ def _output_files(problem, domain) -> dict:
 
 
 def write_outputs(out_dir, problem, result, params, elapsed=None, bundle=None, overwrite=False, cancel=None) -> dict:
-    """Write a solver :class:`~core.solve.solver.Result` into ``out_dir``, all or nothing.
+    """Write a solver :class:`~core.solve.params.Result` into ``out_dir``, all or nothing.
 
     See the module docstring for the files and :func:`core.io.outputs.write_outputs`
     for the guarantees (``overwrite`` and ``cancel`` are passed on; the bundle

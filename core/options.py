@@ -3,7 +3,7 @@
 The operator and the panel (:mod:`blender_addon.operator`, :mod:`blender_addon.panel`), the add-on's command
 line (:mod:`blender_addon.cli`) and the core's (:mod:`core.cli`) are all built from :data:`SPEC`, and
 :func:`check` is the one range check, so every front end accepts the same values and refuses the others with the
-same words. The solver's defaults come from :class:`core.solve.solver.SolverParams`.
+same words. The solver's defaults come from :class:`core.solve.params.SolverParams`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, make_dataclass
 from .errors import DelightError
 from .solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL
 from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
-from .solve.solver import SolverParams
+from .solve.params import SolverParams
 from .solve.stages import ALBEDO_LAMBDA, LIGHT_LAMBDA
 
 __all__ = [
@@ -624,7 +624,7 @@ def _options_class():
         fields_.append((name, kind.replace(" or None", " | None"), field(default=o.default)))
     lines += [
         "solver : dict or None",
-        "    Further :class:`core.solve.solver.SolverParams` fields, for experts and "
+        "    Further :class:`core.solve.params.SolverParams` fields, for experts and "
         "benchmarks (the settings above take precedence).",
     ]
     fields_.append(("solver", "dict | None", field(default=None)))

@@ -20,9 +20,9 @@ from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
 from .progress import check_cancel, piecewise, shares, spans, stage_progress, sub_progress
 from .scene import FullPhoto, SceneInputs
+from .solve.params import SolverParams
 from .solve.problem import Problem, row_blocks
 from .solve.pyramid import seen_onto
-from .solve.solver import SolverParams
 from .solve.stages import LIGHTING_SHARE, albedo_stage, colour_measures, lighting_stage, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 

@@ -14,7 +14,8 @@ from core.solve.ambiguity import (
 )
 from core.solve.discretization import texture_domain
 from core.solve.lighting import shading, view_normal_equations
-from core.solve.solver import SolverParams, solve_joint
+from core.solve.params import SolverParams
+from core.solve.solver import solve_joint
 from core.solve.stages import solve
 
 

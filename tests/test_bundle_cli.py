@@ -11,8 +11,8 @@ from core.io.bundle import load_bundle, save_bundle
 from core.io.envmap import envmap_image, radiance_sh
 from core.io.exr import read_exr
 from core.io.names import unique_names
+from core.solve.params import Result, SolverParams
 from core.solve.problem import Correspondences, Problem, TextureLayout
-from core.solve.solver import Result, SolverParams
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -8,7 +8,7 @@ from core.evaluate.synthetic import sphere_scene
 from core.solve.discretization import texture_domain
 from core.solve.edges import edge_weights, with_edges_freed
 from core.solve.lighting import shading_error
-from core.solve.solver import SolverParams
+from core.solve.params import SolverParams
 from core.solve.stages import EDGE_PASS_SETTLED, solve, solve_albedo
 
 

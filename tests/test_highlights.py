@@ -8,7 +8,7 @@ import scipy.ndimage as ndi
 from core.evaluate.synthetic import sphere_scene
 from core.solve.discretization import texture_domain
 from core.solve.highlights import clipped_regions, highlight_observations
-from core.solve.solver import SolverParams
+from core.solve.params import SolverParams
 from core.solve.stages import solve_albedo
 
 

@@ -6,8 +6,8 @@ import pytest
 from core.solve import lighting
 from core.solve.discretization import texture_domain
 from core.solve.lighting import division_start, fit_lighting, shading_error, shared_lighting_step, split_gains
+from core.solve.params import SolverParams
 from core.solve.problem import Problem
-from core.solve.solver import SolverParams
 from core.solve.stages import (
     solve,
 )

@@ -11,8 +11,8 @@ from core.solve.cg import pcg
 from core.solve.discretization import image_domain
 from core.solve.huber import mm_weight
 from core.solve.multigrid import Hierarchy, block_grid, surface_grid
+from core.solve.params import SolverParams
 from core.solve.problem import Problem
-from core.solve.solver import SolverParams
 from core.solve.stages import solve
 
 

@@ -13,7 +13,7 @@ from core.geometry.bake import bake_view
 from core.parallel import blas_on_one_thread, joined, start, streamed, thread_map
 from core.pipeline import Options, compute
 from core.scene import SceneInputs, ViewInput
-from core.solve.solver import SolverParams
+from core.solve.params import SolverParams
 from core.solve.stages import solve
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from core.evaluate.synthetic import sphere_scene
 from core.progress import ProgressPrinter, ProgressState, TimeLeft, format_time_left, short_message, stage_progress
-from core.solve.solver import SolverParams
+from core.solve.params import SolverParams
 from core.solve.stages import solve
 
 

@@ -9,8 +9,9 @@ from core.evaluate.synthetic import sphere_scene
 from core.geometry.correspondences import find_correspondences
 from core.solve import pyramid
 from core.solve.discretization import texture_domain
+from core.solve.params import SolverParams
 from core.solve.problem import Correspondences, Problem
-from core.solve.solver import SolverParams, energy
+from core.solve.solver import energy
 from core.solve.stages import solve
 
 

@@ -11,8 +11,8 @@ from core.geometry.sh import sh_basis
 from core.solve import stages
 from core.solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL, data_model_for, pixels_per_texel
 from core.solve.lighting import floored, split_gains
+from core.solve.params import SolverParams
 from core.solve.problem import Problem
-from core.solve.solver import SolverParams
 from core.solve.stages import (
     COLOUR_SPARSITY_REFERENCE,
     COLOUR_TEXTURE_RANGE,

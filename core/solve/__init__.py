@@ -17,9 +17,10 @@ from .lambda_choice import (
 )
 from .lighting import weighted_gram
 from .multigrid import Hierarchy, block_grid, surface_grid
+from .params import Result, SolverParams
 from .problem import Correspondences, Problem, TextureLayout
 from .pyramid import coarsen, supported_size, upsample_bilinear, upsample_pixels, with_texture_size
-from .solver import Result, SolverParams, energy, solve_joint
+from .solver import energy, solve_joint
 from .spmv import matvec_into
 from .stages import solve
 

@@ -34,8 +34,9 @@ from ..progress import StepCounter, check_cancel
 from .discretization import texture_domain
 from .edges import with_edges_freed
 from .lighting import division_start, shading, view_normal_equations
+from .params import Result
 from .problem import SUN_COLUMNS
-from .solver import Channel, Result, channel_threads, continued_result, stalled
+from .solver import Channel, channel_threads, continued_result, stalled
 
 __all__ = ["TILT_LENGTHS", "ENTROPY_WINDOW", "tilt_vectors", "tilted_lighting", "albedo_entropy", "tilt_search"]
 
@@ -107,9 +108,9 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None, doma
     ----------
     problem : core.solve.problem.Problem
         The lighting stage's (texture domain).
-    first : core.solve.solver.Result
+    first : core.solve.params.Result
         The lighting stage's first run on ``problem``.
-    params : core.solve.solver.SolverParams
+    params : core.solve.params.SolverParams
         ``light_tilts`` directions (:func:`tilt_vectors`), each start iterated ``light_tilt_iter`` times, the
         lowest narrowed in ``light_tilt_rounds`` under one light, with the lighting stage's model and TV
         weight, its TV rows weighted down across the changes of colour of
@@ -125,7 +126,7 @@ def tilt_search(problem, first: Result, params, cancel=None, progress=None, doma
 
     Returns
     -------
-    core.solve.solver.Result
+    core.solve.params.Result
         With ``info["tilt"]``: per channel the tilt kept, the energies before and after and the albedo's
         ``entropy``, the other end of the last round (``next_tilt``, ``next_energy``, ``next_entropy``; None
         without rounds; the entropies None when they chose nothing), and the seconds.

@@ -68,9 +68,9 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None, doma
     ----------
     problem : core.solve.problem.Problem
         The lighting stage's (texture domain).
-    first : core.solve.solver.Result
+    first : core.solve.params.Result
         The lighting stage's result on ``problem``.
-    params : core.solve.solver.SolverParams
+    params : core.solve.params.SolverParams
         ``light_edges`` is ``eps`` of :func:`edge_weights`; ``lam``,
         ``lighting`` and the iteration bounds apply as in the first stage.
     domain : core.solve.discretization.Discretization, optional
@@ -79,7 +79,7 @@ def reweighted_lighting(problem, first, params, progress=None, cancel=None, doma
 
     Returns
     -------
-    core.solve.solver.Result
+    core.solve.params.Result
         As :func:`core.solve.solver.solve_joint` gives it, with ``info["edges"]``
         (iterations and last energy of this run).
     """

@@ -30,18 +30,9 @@ from .discretization import data_model_for, image_domain, pixels_per_texel, text
 from .edges import reweighted_lighting, with_edges_freed
 from .highlights import without_highlights
 from .lighting import division_start, floored_where_dark
+from .params import Result, SolverParams
 from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_size
-from .solver import (
-    Channel,
-    Result,
-    SolverParams,
-    channel_threads,
-    iterate,
-    iteration_report,
-    rescaled,
-    result_maps,
-    solve_joint,
-)
+from .solver import Channel, channel_threads, iterate, iteration_report, rescaled, result_maps, solve_joint
 
 __all__ = [
     "ALBEDO_LAMBDA",
@@ -269,8 +260,8 @@ def solve_albedo(
     ----------
     problem : core.solve.problem.Problem
     sigma : (m, C, 9) array
-        The lighting of each view (as :class:`core.solve.solver.Result` gives it).
-    params : core.solve.solver.SolverParams
+        The lighting of each view (as :class:`core.solve.params.Result` gives it).
+    params : core.solve.params.SolverParams
         ``lam`` is the TV weight, lowered across the changes of colour of the
         start by ``albedo_edges`` (texture domain), and at ``albedo_debias`` or more solved once more with
         the changes of its result freed (in at most ``max_iter`` iterations of its own; started from a
@@ -303,7 +294,7 @@ def solve_albedo(
 
     Returns
     -------
-    core.solve.solver.Result
+    core.solve.params.Result
         With ``sigma`` as given, rescaled with rho so that the mean shading is 1. The iterations and energies
         are those of the solve; the pass's, under its own weights, are in ``info["debias"]`` where it made one
         (``iterations``, and the last ``energy``), as the lighting stage reports its passes.
@@ -442,7 +433,7 @@ def lighting_stage(problem, params, progress=None, cancel=None):
 
     Returns
     -------
-    (core.solve.problem.Problem, core.solve.solver.Result)
+    (core.solve.problem.Problem, core.solve.params.Result)
         The problem it was solved on, and its result (``albedo_lam`` unused).
     """
     light_problem = problem
@@ -516,7 +507,7 @@ def solve_two_stage(problem, params, progress=None, cancel=None, views=True, sca
 
     Returns
     -------
-    core.solve.solver.Result
+    core.solve.params.Result
         Stage 2's, with stage 1's summary in ``info["lighting_stage"]``.
     """
 
@@ -561,7 +552,7 @@ def albedo_stage(
 
     Returns
     -------
-    core.solve.solver.Result
+    core.solve.params.Result
         With the lighting stage's summary in ``info["lighting_stage"]``.
     """
     t1 = time.perf_counter()
