@@ -239,10 +239,11 @@ def problem_of(inputs, bakes, size, occlusion=False, sun_direction=None):
 def true_lighting(inputs, bakes, gt, texels, size, ours, sets):
     """The true-lighting ceilings, scored on ``texels``, and the error of our lighting (see the module docstring)."""
     from core.pipeline import Options
+    from core.solve.albedo_weight import ALBEDO_LAMBDA
     from core.solve.discretization import data_model_for, texture_domain
     from core.solve.lighting import division_start, fit_lighting, shading_error
     from core.solve.params import SolverParams
-    from core.solve.stages import ALBEDO_LAMBDA, solve_albedo
+    from core.solve.stages import solve_albedo
 
     # The albedo stage's weight as our run had it (adapted to the colour texture by default).
     lam = ours.info.get("albedo_lam") or sets.get("albedo_lam", ALBEDO_LAMBDA) or ALBEDO_LAMBDA

@@ -14,10 +14,10 @@ import numbers
 from dataclasses import dataclass, field, make_dataclass
 
 from .errors import DelightError
+from .solve.albedo_weight import ALBEDO_LAMBDA
 from .solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL
-from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING
+from .solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, LIGHT_LAMBDA
 from .solve.params import SolverParams
-from .solve.stages import ALBEDO_LAMBDA, LIGHT_LAMBDA
 
 __all__ = [
     "Option",

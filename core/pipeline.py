@@ -20,10 +20,11 @@ from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
 from .progress import check_cancel, piecewise, shares, spans, stage_progress, sub_progress
 from .scene import FullPhoto, SceneInputs
+from .solve.albedo_weight import colour_measures
 from .solve.params import SolverParams
 from .solve.problem import Problem, row_blocks
 from .solve.pyramid import seen_onto
-from .solve.stages import LIGHTING_SHARE, albedo_stage, colour_measures, lighting_stage, solve
+from .solve.stages import LIGHTING_SHARE, albedo_stage, lighting_stage, solve
 from .texture import fill_scaled_up, fuse_views, outline_only, sample_texture
 
 # Options, stage_progress and check_cancel live in core.options and core.progress; they are importable from
@@ -118,7 +119,7 @@ def runs_detail(options: Options, inputs) -> bool:
     return uses_detail(options) and any(v.full is not None for v in inputs.views)
 
 
-#: With ``detail`` "auto", the least colour texture of the photos (:func:`core.solve.stages.colour_texture`)
+#: With ``detail`` "auto", the least colour texture of the photos (:func:`core.solve.albedo_weight.colour_texture`)
 #: that gets the detail stage. On a flatter albedo the albedo stage at the working resolution, whose TV weight
 #: is then strong (26 or more at the reference sparsity of its changes of colour), takes out shading that the
 #: stage's per-pixel division keeps. Chosen by leave-one-scene-out over 21 scenes with photos larger than the
@@ -371,9 +372,8 @@ def _lighting_choice(problem, opt, progress):
 
     ``variation`` is :func:`core.solve.lambda_choice.lighting_variation` where measured, else None.
     """
-    from .solve.lambda_choice import auto_lambda, describe_lambda
+    from .solve.lambda_choice import LIGHT_LAMBDA, auto_lambda, describe_lambda
     from .solve.lighting import choose_lighting
-    from .solve.stages import LIGHT_LAMBDA
 
     lam, variation, lighting = opt.lam, None, opt.lighting
     if lam is None or lighting == "auto":

@@ -18,8 +18,8 @@ from core.errors import Cancelled, DelightError
 from core.failures import report_failure
 from core.options import OPTIONS, RUN_FIELDS, SOLVER_FIELDS, SPEC, Options, check, requirement
 from core.progress import STAGES, ProgressPrinter, check_cancel, stage_progress
+from core.solve.lambda_choice import LIGHT_LAMBDA
 from core.solve.params import SolverParams
-from core.solve.stages import LIGHT_LAMBDA
 
 #: Bad values and the one message every front end gives for them.
 BAD = [

@@ -9,21 +9,19 @@ from core.evaluate.metrics import scaled_rmse
 from core.evaluate.synthetic import sphere_scene
 from core.geometry.sh import sh_basis
 from core.solve import stages
-from core.solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL, data_model_for, pixels_per_texel
-from core.solve.lighting import floored, split_gains
-from core.solve.params import SolverParams
-from core.solve.problem import Problem
-from core.solve.stages import (
+from core.solve.albedo_weight import (
     COLOUR_SPARSITY_REFERENCE,
     COLOUR_TEXTURE_RANGE,
     COLOUR_TEXTURE_REFERENCE,
     adapted_albedo_lam,
     colour_measures,
     colour_texture,
-    lighting_stage,
-    solve,
-    solve_albedo,
 )
+from core.solve.discretization import NEAREST_MIN_PIXELS_PER_TEXEL, data_model_for, pixels_per_texel
+from core.solve.lighting import floored, split_gains
+from core.solve.params import SolverParams
+from core.solve.problem import Problem
+from core.solve.stages import lighting_stage, solve, solve_albedo
 
 
 @pytest.mark.parametrize("lighting", ["per_view", "shared", "coupled"])

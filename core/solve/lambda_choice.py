@@ -1,4 +1,7 @@
-"""How much the lighting differs between the photos, and the TV weight it calls for.
+"""The TV weight of the lighting: :data:`LIGHT_LAMBDA` for the two-stage solve's lighting stage, and for the
+paper's one stage, the weight that how much the lighting differs between the photos calls for.
+
+(The albedo stage's weight is chosen from the photos' colour texture: :mod:`core.solve.albedo_weight`.)
 
 Under one fixed light a Lambertian surface point looks equally bright from
 every view (same normal, same shading). When the light moves between shots,
@@ -25,6 +28,7 @@ from ..geometry.texels import texel_index
 from ..masks import masked
 
 __all__ = [
+    "LIGHT_LAMBDA",
     "lighting_variation",
     "choose_lambda",
     "auto_lambda",
@@ -34,6 +38,9 @@ __all__ = [
     "LAMBDA_VARYING",
 ]
 
+#: TV weight of the lighting stage where the pipeline picks it (two stages): strong, so that the lighting keeps
+#: the shading and not the albedo; chosen by leave-one-scene-out over 48 scenes (docs/measurements.md).
+LIGHT_LAMBDA = 8.0
 VARYING_THRESHOLD = 0.2  # above every fixed-light scene measured, below every moving-light one
 LAMBDA_FIXED = 5.0
 LAMBDA_VARYING = 0.5

@@ -84,10 +84,10 @@ class SolverParams:
         estimated with ``lam``, then the albedo solved again with that
         lighting fixed and this TV weight. ``lam``'s default is the one-stage
         solve's; where :mod:`core.pipeline` picks it for two stages it is
-        :data:`core.solve.stages.LIGHT_LAMBDA`.
+        :data:`core.solve.lambda_choice.LIGHT_LAMBDA`.
     albedo_adapt : bool
         Two stages, texture domain: ``albedo_lam`` scaled by how much fine colour texture the photos show and
-        how sparse its changes are (:func:`core.solve.stages.adapted_albedo_lam`); False: as given.
+        how sparse its changes are (:func:`core.solve.albedo_weight.adapted_albedo_lam`); False: as given.
     light_size : int
         Two stages: the largest texture the lighting stage solves on (0: the
         problem's own).

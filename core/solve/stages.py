@@ -8,9 +8,10 @@ stages (:func:`solve_two_stage`):
    a few coefficients per view; it needs no fine texels). The strong weight keeps shading out of the albedo,
    and flattens its detail.
 2. :func:`solve_albedo`: the albedo again, under that lighting held fixed, with a weak TV weight chosen from
-   the photos' colour texture (:func:`colour_texture`): a convex problem in rho alone, started from the photos
-   divided by the shading (:func:`core.solve.lighting.division_start`), or from its own solve at half the size;
-   at a strong weight, solved once more with the changes of its result freed (:func:`debiases`).
+   the photos' colour texture (:func:`core.solve.albedo_weight.adapted_albedo_lam`): a convex problem in rho
+   alone, started from the photos divided by the shading (:func:`core.solve.lighting.division_start`), or from
+   its own solve at half the size; at a strong weight, solved once more with the changes of its result freed
+   (:func:`debiases`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..geometry.texels import texel_totals
 from ..memory import release_free_memory
 from ..parallel import blas_on_one_thread, joined, start
 from ..progress import check_cancel, shares, sub_progress
+from .albedo_weight import adapted_albedo_lam, colour_measures
 from .ambiguity import tilt_search
 from .discretization import data_model_for, image_domain, pixels_per_texel, texture_domain
 from .edges import reweighted_lighting, with_edges_freed
@@ -35,13 +37,8 @@ from .pyramid import coarsen, supported_size, upsample_bilinear, with_texture_si
 from .solver import Channel, channel_threads, iterate, iteration_report, rescaled, result_maps, solve_joint
 
 __all__ = [
-    "ALBEDO_LAMBDA",
-    "LIGHT_LAMBDA",
     "LIGHTING_SHARE",
-    "adapted_albedo_lam",
     "albedo_stage",
-    "colour_measures",
-    "colour_texture",
     "debiases",
     "lighting_stage",
     "solve",
@@ -72,28 +69,6 @@ def solve(
     if params.albedo_lam is None:
         return solve_joint(problem, params, progress, cancel, views, scale_up)
     return solve_two_stage(problem, params, progress, cancel, views, scale_up, albedo_problem)
-
-
-#: TV weight of the lighting stage where the pipeline picks it (two stages): strong, so that the lighting keeps
-#: the shading and not the albedo; chosen by leave-one-scene-out over 48 scenes (docs/measurements.md).
-LIGHT_LAMBDA = 8.0
-#: TV weight of the albedo stage (with ``SolverParams.albedo_edges``), chosen by leave-one-scene-out over the
-#: fixtures (docs/measurements.md); with ``SolverParams.albedo_adapt``, the weight at COLOUR_TEXTURE_REFERENCE.
-ALBEDO_LAMBDA = 20.0
-#: With ``albedo_adapt`` the albedo stage's weight is ``albedo_lam * (f / COLOUR_TEXTURE_REFERENCE) **
-#: -COLOUR_TEXTURE_POWER`` within ``albedo_lam`` times COLOUR_TEXTURE_RANGE, f the photos' colour texture
-#: (:func:`colour_texture`): an albedo with fine changes of colour everywhere wants a weak TV that keeps them,
-#: flat patches a strong one that takes the shading left in them. Fitted by leave-one-scene-out over the 13
-#: fixtures, where the best weight spans 0.05 to 80 (docs/measurements.md).
-COLOUR_TEXTURE_REFERENCE = 0.044
-COLOUR_TEXTURE_POWER = 6.0
-COLOUR_TEXTURE_RANGE = (1 / 400, 4.0)
-#: That factor is multiplied by ``(h / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER``, h how sparse those
-#: changes of colour are (:func:`colour_measures`): fine texture that changes everywhere (noise, fabric) wants a
-#: weaker TV than its colour texture alone gives, a few sharp edges between flat patches a stronger one. Fitted
-#: with the reference weight by leave-one-scene-out over 40 scenes, and checked on 6 more (docs/measurements.md).
-COLOUR_SPARSITY_REFERENCE = 0.385
-COLOUR_SPARSITY_POWER = 6.0
 
 
 def _start(d, sigma, half=None) -> np.ndarray:
@@ -544,11 +519,12 @@ def albedo_stage(
     measures=None,
 ):
     """Stage 2 of the two-stage solve: :func:`solve_albedo` on ``problem`` with ``params.albedo_lam`` (adapted
-    to the photos' :func:`colour_measures` with ``params.albedo_adapt``), under :func:`lighting_stage`'s
-    lighting ``first.sigma``; ``light_problem`` is the problem that stage was solved on.
+    to the photos' :func:`core.solve.albedo_weight.colour_measures` with ``params.albedo_adapt``), under
+    :func:`lighting_stage`'s lighting ``first.sigma``; ``light_problem`` is the problem that stage was solved on.
 
     ``started``: when the lighting stage began (:func:`time.perf_counter`), for its seconds in the summary;
-    ``measures``: :func:`colour_measures` of ``light_problem``, if the caller measured them already.
+    ``measures``: :func:`core.solve.albedo_weight.colour_measures` of ``light_problem``, if the caller measured
+    them already.
 
     Returns
     -------
@@ -598,56 +574,3 @@ def albedo_stage(
     second.info["colour_sparsity"] = sparsity
     second.info["elapsed"] = [time.perf_counter() - t0]
     return second
-
-
-def colour_measures(problem, sigma: np.ndarray) -> tuple[float, float]:
-    """``(texture, sparsity)``: how much fine colour texture the photos show, and how sparse its changes are.
-
-    Both from the changes of chromaticity between neighbouring texels of the photos divided by their shading
-    (:func:`division_start`, nearest texel), on the problem's texture (:func:`solve_two_stage` gives it the lighting
-    stage's, at most 128², where the rule was fitted). Chromaticity (``3 rho / sum(rho)``) hardly changes with the
-    shading, so where the lighting left shading in the division these measure the albedo's own changes of colour.
-    ``texture`` is their median; ``sparsity`` their Hoyer sparsity, ``(sqrt(n) - |s|_1 / |s|_2) / (sqrt(n) - 1)``:
-    0 where every pair changes alike, 1 where one pair holds all the change. NaN, NaN for grey photos or when no
-    two neighbouring texels are seen.
-    """
-    if problem.channels != 3:  # grey photos: no colour to change
-        return float("nan"), float("nan")
-    size = problem.texture.size
-    d = texture_domain(problem, data_model="nearest")
-    img = np.full((size * size, 3), np.nan)
-    img[d.texel_index] = division_start(d, sigma)
-    img = img.reshape(size, size, 3)
-    total = img.sum(axis=-1)
-    seen = np.isfinite(total) & (total > 0)
-    chroma = 3 * img / np.maximum(total, 1e-4)[..., None]
-    steps = []
-    for axis in (0, 1):
-        step = np.diff(chroma, axis=axis)
-        both = np.delete(seen, -1, axis) & np.delete(seen, 0, axis)
-        steps.append(np.sqrt((step[both] ** 2).sum(axis=-1)))
-    steps = np.concatenate(steps)
-    if not steps.size:
-        return float("nan"), float("nan")
-    texture = float(np.median(steps))
-    norm = float(np.sqrt(np.sum(steps**2)))
-    root = np.sqrt(steps.size)
-    sparsity = float((root - steps.sum() / norm) / (root - 1)) if norm > 0 and steps.size > 1 else float("nan")
-    return texture, sparsity
-
-
-def colour_texture(problem, sigma: np.ndarray) -> float:
-    """How much fine colour texture the photos show: :func:`colour_measures`' first."""
-    return colour_measures(problem, sigma)[0]
-
-
-def adapted_albedo_lam(albedo_lam: float, texture: float, sparsity: float = float("nan")) -> float:
-    """The albedo stage's TV weight for the photos' colour texture and its sparsity (:func:`colour_measures`):
-    ``albedo_lam`` where the texture is NaN; the texture's factor alone where the sparsity is."""
-    if not np.isfinite(texture):
-        return albedo_lam
-    lo, hi = COLOUR_TEXTURE_RANGE
-    factor = (max(texture, 1e-12) / COLOUR_TEXTURE_REFERENCE) ** -COLOUR_TEXTURE_POWER
-    if np.isfinite(sparsity):
-        factor *= (max(sparsity, 1e-12) / COLOUR_SPARSITY_REFERENCE) ** COLOUR_SPARSITY_POWER
-    return float(albedo_lam * np.clip(factor, lo, hi))

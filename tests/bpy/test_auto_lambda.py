@@ -12,8 +12,12 @@ bpy = pytest.importorskip("bpy")
 from conftest import ROOT, needs_fixture_blend  # noqa: E402
 
 from blender_addon import pipeline  # noqa: E402
-from blender_addon.core.solve.lambda_choice import LAMBDA_FIXED, LAMBDA_VARYING, VARYING_THRESHOLD  # noqa: E402
-from blender_addon.core.solve.stages import LIGHT_LAMBDA  # noqa: E402
+from blender_addon.core.solve.lambda_choice import (  # noqa: E402
+    LAMBDA_FIXED,
+    LAMBDA_VARYING,
+    LIGHT_LAMBDA,
+    VARYING_THRESHOLD,
+)
 
 pytestmark = [pytest.mark.bpy, needs_fixture_blend]
 
