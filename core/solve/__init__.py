@@ -1,5 +1,18 @@
-"""The reflectance problem and its solver: the model (SH shading, Huber), its discretisations, the majorization-
-minimization loop with CG and multigrid, coarse-to-fine levels, and the choice of lambda.
+"""The reflectance problem and its solver, in the order a solve reads them.
+
+- :mod:`.problem`: the photos, masks, normals and UVs of one solve (:class:`Problem`);
+  :mod:`.discretization` turns it into observations and rows of differences, on the texels or on the pixels;
+  :mod:`.pyramid` makes its coarser copies.
+- :mod:`.params`: what a solve takes and gives (:class:`SolverParams`, :class:`Result`).
+- :mod:`.stages`: the entry point :func:`solve`, the paper's one stage or the lighting and then the albedo.
+  Their TV weights: :mod:`.lambda_choice` (the lighting's) and :mod:`.albedo_weight` (the albedo's, from the
+  photos' colour texture).
+- :mod:`.solver`: the alternating majorization-minimization (the paper's section 4), over :mod:`.huber`'s
+  loss, with :mod:`.lighting`'s models for the sigma-step; the rho-step's CG (:mod:`.cg`), preconditioner
+  (:mod:`.multigrid`) and products (:mod:`.spmv`); :mod:`.gauss_newton`'s optional joint step.
+- What the two stages add to the paper: :mod:`.ambiguity` (the lighting moved along the albedo-lighting
+  ambiguity), :mod:`.edges` (TV weighted down across changes of colour), :mod:`.highlights` (clipped
+  highlights left out).
 """
 
 from ..geometry.sh import DIFFUSE, SH_BASIS_NAMES, sh_basis
