@@ -31,8 +31,9 @@ from .core.io import outputs as _outputs
 from .core.io.names import safe_name
 from .core.io.photo_cache import PhotoCache
 from .core.parallel import blas_on_one_thread
-from .core.pipeline import Computed, Options, check_cancel, peak_mb, schedule, stage_progress, uses_detail
+from .core.pipeline import Computed, Options, check_cancel, peak_mb, stage_progress
 from .core.pipeline import compute as _compute
+from .core.plan import schedule, uses_detail
 
 
 @dataclass
@@ -48,7 +49,7 @@ class Prepared:
     peaks: dict = field(default_factory=dict)  # peak memory (MB) at the end of each stage
     photos: PhotoCache | None = None  # the full-resolution photos' temporary copies, for the detail stage
     alignment: object = None  # core.geometry.align.Alignment with the option align_photos, else None
-    stages: dict | None = None  # the progress bar's spans (core.pipeline.schedule), set once the photos are read
+    stages: dict | None = None  # the progress bar's spans (core.plan.schedule), set once the photos are read
 
     def release(self):
         """Remove the full-resolution photos' temporary copies (once the detail stage is done, or on failure)."""

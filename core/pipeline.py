@@ -13,13 +13,24 @@ import numpy as np
 
 from .geometry.raycast import Triangles
 from .geometry.texels import texture_layout
-from .io.photos import photo_scaled
 from .masks import masked
 from .memory import peak_mb
 from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
-from .progress import check_cancel, piecewise, shares, spans, stage_progress, sub_progress
-from .scene import FullPhoto, SceneInputs
+from .photo_levels import PHOTO_LEVEL, channel_gains, with_gains
+from .plan import (
+    DETAIL_MIN_COLOUR_TEXTURE,
+    FLAT_ALBEDO_PIXELS,
+    flat_albedo,
+    light_size,
+    runs_detail,
+    schedule,
+    solve_parts,
+    spans_without_detail,
+    wants_detail,
+)
+from .progress import check_cancel, piecewise, shares, stage_progress, sub_progress
+from .scene import SceneInputs
 from .solve.albedo_weight import colour_measures
 from .solve.params import SolverParams
 from .solve.problem import Problem, row_blocks
@@ -36,14 +47,6 @@ __all__ = [
     "Computed",
     "compute",
     "peak_mb",
-    "uses_detail",
-    "schedule",
-    "expected_seconds",
-    "solve_parts",
-    "runs_detail",
-    "wants_detail",
-    "flat_albedo",
-    "DETAIL_MIN_COLOUR_TEXTURE",
     "LIGHTING_PIXELS",
     "stage_progress",
     "check_cancel",
@@ -86,17 +89,12 @@ def _layout(mesh, n):
 LIGHT_LAYOUT_SIZE = 1024
 
 
-def _layouts(mesh, n, light_size):
+def _layouts(mesh, n, light_n):
     """The texture's layout, and the lighting stage's where it coarsens the texture and that is not the same
     (not for a lighting stage of LIGHT_LAYOUT_SIZE or more, which keeps the texture's)."""
-    coarsens = 0 < light_size < min(n, LIGHT_LAYOUT_SIZE)
+    coarsens = 0 < light_n < min(n, LIGHT_LAYOUT_SIZE)
     light = _layout(mesh, LIGHT_LAYOUT_SIZE) if coarsens and n != LIGHT_LAYOUT_SIZE else None
     return _layout(mesh, n), light
-
-
-def _light_size(options: Options) -> int:
-    """The lighting stage's texture size (SolverParams.light_size, as the run's solver settings give it)."""
-    return int((options.solver or {}).get("light_size", DEFAULTS.light_size))
 
 
 def _unclipped(mask, clipped):
@@ -105,114 +103,6 @@ def _unclipped(mask, clipped):
         return mask
     keep = mask & ~clipped
     return keep if keep.any() else mask
-
-
-def uses_detail(options: Options) -> bool:
-    """Whether a run with ``options`` may make the albedo again from the full-resolution photos, if they are
-    larger (with ``detail`` "auto", :func:`compute` decides from the photos' colour texture)."""
-    return options.detail != "off" and options.method != "project"
-
-
-def runs_detail(options: Options, inputs) -> bool:
-    """Whether a run with ``options`` on ``inputs`` plans the detail stage: some photo is larger than its working
-    copy. With ``detail`` "auto" a flat albedo then goes without it (:func:`wants_detail`)."""
-    return uses_detail(options) and any(v.full is not None for v in inputs.views)
-
-
-#: With ``detail`` "auto", the least colour texture of the photos (:func:`core.solve.albedo_weight.colour_texture`)
-#: that gets the detail stage. On a flatter albedo the albedo stage at the working resolution, whose TV weight
-#: is then strong (26 or more at the reference sparsity of its changes of colour), takes out shading that the
-#: stage's per-pixel division keeps. Chosen by leave-one-scene-out over 21 scenes with photos larger than the
-#: working resolution (docs/measurements.md).
-DETAIL_MIN_COLOUR_TEXTURE = 0.042
-
-
-#: On a flat albedo (a colour texture of at most DETAIL_MIN_COLOUR_TEXTURE), the most pixels on the mesh (all
-#: photos together) the Texture method's albedo stage is solved on, with or without the detail stage planned,
-#: every k-th pixel of every k-th row beyond (:func:`_thinned`): a flat albedo needs no more, and on the large
-#: captures fewer pixels, solved on fewer texels, were both quicker and more accurate; on the fixtures' fewer
-#: pixels, every pixel counts (docs/measurements.md).
-FLAT_ALBEDO_PIXELS = 2_000_000
-
-
-def flat_albedo(texture: float) -> bool:
-    """Whether the photos' colour texture ``texture`` says the albedo is flat (NaN, grey photos: not)."""
-    return texture <= DETAIL_MIN_COLOUR_TEXTURE
-
-
-def wants_detail(options: Options, texture: float) -> bool:
-    """Whether a run that planned the detail stage keeps it, once its lighting stage has measured the photos'
-    colour texture ``texture`` (NaN for grey photos, which keep it)."""
-    return options.detail == "on" or not flat_albedo(texture)
-
-
-def _sizes(options: Options, inputs):
-    """Millions of working pixels, of full-resolution pixels (the detail stage's), of triangles and of texels."""
-    mp = 1e-6
-    views = inputs.views
-    working = mp * sum(v.photo.shape[0] * v.photo.shape[1] for v in views)
-    full = mp * sum(v.full.camera.width * v.full.camera.height for v in views if v.full is not None)
-    return working, full, mp * len(inputs.mesh.tri_pos), mp * int(options.texture_size) ** 2
-
-
-def _solved_texels(options: Options, inputs, flat: bool = False) -> float:
-    """Millions of texels the albedo is solved on: no more than the pixels resolve (SolverParams'
-    max_texels_per_pixel: 2 per pixel on the mesh, about 2/3 of the photo); before the detail stage, the
-    lighting stage's texture alone; ``flat``: a flat albedo's, on at most :data:`FLAT_ALBEDO_PIXELS`."""
-    working, _, _, texels = _sizes(options, inputs)
-    if runs_detail(options, inputs):
-        return min(texels, 1e-6 * _light_size(options) ** 2)
-    return min(texels, 1.3 * working, 2e-6 * FLAT_ALBEDO_PIXELS if flat else np.inf)
-
-
-def expected_seconds(options: Options, inputs, flat: bool = False) -> dict:
-    """Roughly how long each stage after the gather takes, from the run's sizes, in run order.
-
-    Only the ratios count (:func:`core.progress.spans`); the seconds are of the machine they were fitted on
-    (Intel Xeon, 2 cores: 13 photos of 0.5, 1 and 12 MP, 50 of 24 MP; docs/measurements.md). The bake and
-    the photos' alignment go with the pixels and the triangles; the solve is :func:`solve_parts`; the fuse and
-    the writing go with the texels; the detail stage with the full-resolution pixels. ``flat``: as after
-    :func:`wants_detail` left the stage out, the albedo stage on at most :data:`FLAT_ALBEDO_PIXELS`.
-    """
-    working, full, triangles, texels = _sizes(options, inputs)
-    solved = _solved_texels(options, inputs, flat)
-    seconds = {
-        "bake": 0.3 * working + 20.0 * triangles + 1.5,
-        "solve": sum(solve_parts(options, inputs, flat).values()),
-        "fuse": 0.6 * solved + 0.17 * texels,
-    }
-    if runs_detail(options, inputs):
-        seconds["detail"] = 0.31 * full
-    seconds["write"] = 0.25 * texels + 0.02 * working + 1.5
-    return seconds
-
-
-def solve_parts(options: Options, inputs, flat: bool = False) -> dict:
-    """Roughly how long each part of the solve stage takes, as :func:`expected_seconds` (0 for a part the run
-    does not have), in run order: the occlusion; the sun's search, then the problem's making (its transfer, the
-    texture's layout); the lighting stage; the albedo stage. :func:`compute` draws each on its share of the
-    solve stage's bar. ``flat`` as :func:`expected_seconds`'.
-    """
-    working, _, triangles, texels = _sizes(options, inputs)
-    parts = {"occlusion": 0.0, "problem": 0.0, "lighting": 0.0, "albedo": 0.0}
-    if options.method == "project":
-        parts["problem"] = 0.1 * working
-        return parts
-    if options.occlusion:
-        parts["occlusion"] = 2.5 + 11.0 * triangles
-    parts["problem"] = (4.0 + 30.0 * triangles if options.sun else 0.0) + 0.17 * texels
-    # The lighting stage thins its pixels to at most 64 per texel of its 128² texture: past about 7 MP of photo
-    # its time stops growing (docs/measurements.md).
-    parts["lighting"] = max(4.1 * min(working, 7.0) - 6.0, 5.0)
-    if options.albedo_lam is not None and not runs_detail(options, inputs):
-        parts["albedo"] = 4.4 * _solved_texels(options, inputs, flat)
-    return parts
-
-
-def schedule(options: Options, inputs) -> dict:
-    """The progress bar's span of each stage (:mod:`core.progress`) for a run with ``options`` on ``inputs``: in
-    proportion to :func:`expected_seconds`, so that the time left is read from the bar's progress."""
-    return spans(expected_seconds(options, inputs))
 
 
 #: With the detail stage, the most pixels on the mesh (all photos together) the lighting stage is solved on: a
@@ -235,57 +125,6 @@ def _thinned(masks, budget):
     return out
 
 
-#: :func:`channel_gains` changes no channel by more than this factor either way: a channel the photos hardly
-#: have (a red object under red light, in blue) is not raised to the others' level, its noise with it.
-CHANNEL_GAIN_MAX = 10.0
-
-
-#: The mean the photos are brought to over the mesh's pixels before the solve: the solve does not depend on
-#: the photos' exposure. Chosen on the 40 scenes (docs/measurements.md); their own means are 0.07-0.42.
-PHOTO_LEVEL = 0.1
-
-
-def channel_gains(photos, masks, level: float | None = None) -> np.ndarray:
-    """Per channel, the factor that brings its mean over the masked pixels to the mean of the channels' means,
-    times the one factor that brings that mean to ``level`` (None: the photos' own).
-
-    The solver's constants (the Huber loss's delta, the stages' thresholds) are in the photos' units: without
-    this a dark channel (the blue of a warm-lit red object, a tenth of the red) is held to a looser fit than a
-    bright one, and photos twice as bright give another albedo. :func:`compute` solves on the photos times
-    these gains, at :data:`PHOTO_LEVEL`, and divides them out of the albedo (docs/measurements.md).
-    """
-    total, count = 0.0, 0
-    for photo, mask in zip(photos, masks):
-        total = total + masked(photo, mask).sum(axis=0, dtype=np.float64)
-        count += int(np.count_nonzero(mask))
-    means = np.asarray(total, np.float64) / max(count, 1)
-    good = np.isfinite(means) & (means > 0)
-    gains = np.ones(np.shape(means))
-    if good.any():
-        mean = means[good].mean()
-        gains[good] = np.clip(mean / means[good], 1 / CHANNEL_GAIN_MAX, CHANNEL_GAIN_MAX)
-        if level is not None:
-            gains = gains * (level / mean)
-    return gains.astype(np.float32)
-
-
-def _with_gains(inputs, gains):
-    """``inputs`` with every photo (the full-resolution ones as they are read) times ``gains``, per channel."""
-
-    def scaled(full):
-        if full is None:
-            return None
-
-        def load():
-            photo, clipped = full.load()
-            return photo_scaled(photo, gains), clipped
-
-        return FullPhoto(camera=full.camera, load=load)
-
-    views = [replace(v, photo=v.photo * gains, full=scaled(v.full)) for v in inputs.views]
-    return replace(inputs, views=views)
-
-
 def _lighting_only(result, texture):
     """The two-stage solve's lighting stage as the run's result, before the detail stage: its albedo as solved
     in ``result.solved`` (the fuse scales it up to the full texture, :func:`core.texture.fill.fill_scaled_up`),
@@ -300,24 +139,6 @@ def _lighting_only(result, texture):
     result.info["lighting_only"] = True
     result.info["colour_texture"] = texture
     return result
-
-
-def _without_detail(options: Options, inputs, stages: dict):
-    """The bar's spans once a run that planned the detail stage goes without it (:func:`wants_detail`): the
-    albedo stage and the fuse share the bar from the solve's end to the detail stage's, as they are expected to
-    take (:func:`expected_seconds` of a flat albedo without it). Returns the new spans and the albedo stage's span."""
-    plain = replace(options, detail="off")
-    parts = shares(
-        {
-            "albedo": solve_parts(plain, inputs, flat=True)["albedo"],
-            "fuse": expected_seconds(plain, inputs, flat=True)["fuse"],
-        },
-        stages["solve"][1],
-        stages["detail"][1],
-    )
-    out = {k: v for k, v in stages.items() if k != "detail"}
-    out["fuse"] = parts["fuse"]
-    return out, parts["albedo"]
 
 
 #: The sun search's settings (core.geometry.sun.find_sun): 200 candidates on 128² shadow maps, at most 20 000
@@ -505,7 +326,7 @@ def compute(
     gains = None
     if opt.method != "project":
         gains = channel_gains([v.photo for v in inputs.views], masks, PHOTO_LEVEL)
-        inputs = _with_gains(inputs, gains)
+        inputs = with_gains(inputs, gains)
     photos = [v.photo for v in inputs.views]
     solve_masks = masks
     if opt.mask_clipped and opt.method != "project":
@@ -524,8 +345,8 @@ def compute(
     solve_progress(0.0, "building the problem")
     # The layout (one core) is made while the occlusion, the lighting's choice and the sun search use the others.
     # A run that fails or is cancelled before that waits for it: no thread outlives the run.
-    light_size = _light_size(opt) if opt.method == "texture" else 0
-    with joined(start(_layouts, inputs.mesh, n, light_size, threads=opt.threads)) as layout_job:
+    light_n = light_size(opt) if opt.method == "texture" else 0
+    with joined(start(_layouts, inputs.mesh, n, light_n, threads=opt.threads)) as layout_job:
         correspondences = None
         if opt.method == "image":
             from .geometry.correspondences import find_correspondences
@@ -607,7 +428,7 @@ def compute(
             else:
                 # A flat albedo: the albedo stage at the working resolution in place of the detail stage.
                 detail = lighting_only = False
-                stages, span = _without_detail(opt, inputs, stages)
+                stages, span = spans_without_detail(opt, inputs, stages)
                 albedo_progress = sub_progress(progress, *span, "solve")
                 albedo_progress(
                     0.0,

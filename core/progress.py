@@ -3,7 +3,7 @@
 A progress callback is ``progress(fraction, message="")`` with ``fraction`` in [0, 1]; a cancel callback is
 ``cancel() -> bool``. Each stage reports its own 0..1 through :func:`stage_progress`, which maps it into the
 stage's share of the whole run: :data:`STAGES` by default, or the shares a run expects (:func:`spans`, from
-:func:`core.pipeline.schedule` once the photos are read); the stages call :func:`check_cancel` between steps.
+:func:`core.plan.schedule` once the photos are read); the stages call :func:`check_cancel` between steps.
 The command lines print progress with :class:`ProgressPrinter`; the GUI operator draws a bar from a
 :class:`ProgressState`. Both add the time left that :class:`TimeLeft` estimates.
 """

@@ -1,5 +1,5 @@
 """The photos' channels brought to one mean, and that mean to one level, before the solve
-(core.pipeline.channel_gains), and divided out after."""
+(core.photo_levels.channel_gains), and divided out after."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,8 @@ from test_detail import band_mesh, fine_albedo, inputs_of, lighting, render, rin
 
 import core.pipeline as pipeline
 from core.geometry.bake import bake_view
-from core.pipeline import CHANNEL_GAIN_MAX, Options, channel_gains, compute
+from core.photo_levels import CHANNEL_GAIN_MAX, channel_gains
+from core.pipeline import Options, compute
 from core.scene import SceneInputs, ViewInput
 
 

@@ -18,7 +18,8 @@ from core.geometry.raycast import Triangles
 from core.geometry.sh import sh_basis
 from core.geometry.texels import bilinear_texels
 from core.io.photos import downscale
-from core.pipeline import DETAIL_MIN_COLOUR_TEXTURE, Options, compute, schedule, solve_parts, wants_detail
+from core.pipeline import Options, compute
+from core.plan import DETAIL_MIN_COLOUR_TEXTURE, schedule, solve_parts, wants_detail
 from core.progress import shares, stage_of
 from core.scene import FullPhoto, MeshArrays, SceneInputs, ViewInput
 from core.texture.detail import agreement, detail_albedo, view_shadings
@@ -388,7 +389,7 @@ def test_detail_albedo_refuses_a_photo_of_the_wrong_size(scene):
 
 
 def test_the_schedule_gives_each_stage_its_share_of_the_expected_time(scene):
-    from core.pipeline import expected_seconds, schedule
+    from core.plan import expected_seconds, schedule
     from core.progress import STAGES
 
     inputs = inputs_of(scene, Loads(scene[4]))

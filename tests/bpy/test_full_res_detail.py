@@ -16,7 +16,7 @@ from bench.accuracy import texture_rmse  # noqa: E402
 from blender_addon import pipeline  # noqa: E402
 from blender_addon.core.io.exr import read_exr  # noqa: E402
 from blender_addon.core.io.photo_cache import PREFIX  # noqa: E402
-from blender_addon.core.pipeline import DETAIL_MIN_COLOUR_TEXTURE  # noqa: E402
+from blender_addon.core.plan import DETAIL_MIN_COLOUR_TEXTURE  # noqa: E402
 
 pytestmark = [pytest.mark.bpy, needs_fixture_blend]
 
