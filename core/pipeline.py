@@ -19,6 +19,7 @@ from .options import OPTIONS, Options
 from .parallel import blas_on_one_thread, joined, start, thread_map
 from .photo_levels import PHOTO_LEVEL, channel_gains, with_gains
 from .plan import (
+    DEFAULTS,
     DETAIL_MIN_COLOUR_TEXTURE,
     FLAT_ALBEDO_PIXELS,
     flat_albedo,
@@ -51,9 +52,6 @@ __all__ = [
     "stage_progress",
     "check_cancel",
 ]
-
-#: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
-DEFAULTS = SolverParams()
 
 METHODS = OPTIONS["method"].values
 

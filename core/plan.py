@@ -16,6 +16,7 @@ from .progress import shares, spans
 from .solve.params import SolverParams
 
 __all__ = [
+    "DEFAULTS",
     "DETAIL_MIN_COLOUR_TEXTURE",
     "FLAT_ALBEDO_PIXELS",
     "expected_seconds",
@@ -30,9 +31,13 @@ __all__ = [
 ]
 
 
+#: The solver's defaults, chosen by albedo RMSE on the fixtures; every front end shows these.
+DEFAULTS = SolverParams()
+
+
 def light_size(options: Options) -> int:
     """The lighting stage's texture size (SolverParams.light_size, as the run's solver settings give it)."""
-    return int((options.solver or {}).get("light_size", SolverParams().light_size))
+    return int((options.solver or {}).get("light_size", DEFAULTS.light_size))
 
 
 def uses_detail(options: Options) -> bool:
